@@ -1,0 +1,20 @@
+"""formula-tourney: deep RL drivers race a car at its grip limit from telemetry alone.
+
+Importing the package registers the Gymnasium id ``FormulaRacing-v0`` (entry points are strings,
+so nothing heavy is imported until an env is made).
+"""
+
+from __future__ import annotations
+
+import gymnasium
+
+__version__ = "0.1.0"
+
+ENV_ID = "FormulaRacing-v0"
+
+if ENV_ID not in gymnasium.registry:
+    gymnasium.register(
+        id=ENV_ID,
+        entry_point="formula_tourney.sim.env:FormulaRacingEnv",
+        vector_entry_point="formula_tourney.sim.env:FormulaRacingVectorEnv",
+    )

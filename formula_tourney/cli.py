@@ -1,0 +1,53 @@
+"""The ``formula-tourney`` command line: parses arguments and calls one function per command.
+
+Each command group lives in ``formula_tourney/commands/<area>.py`` and exposes
+``register(app)``; this file only assembles them and maps bad input to exit code 2.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+
+from formula_tourney.commands import agents, demo, lines, report, tourney, tracks
+from formula_tourney.errors import UserInputError
+
+app = typer.Typer(
+    name="formula-tourney",
+    help="Deep RL drivers race at the grip limit from telemetry: tracks, bots, DDPG variants, "
+    "tournaments and the paper's reports.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+for module in (demo, tracks, lines, agents, tourney, report):
+    module.register(app)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point: a UserInputError becomes one line on stderr and exit code 2."""
+    try:
+        app(args=argv, standalone_mode=False)
+    except UserInputError as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
+    except typer.Exit as exc:  # raised by commands that decide their own exit code
+        sys.exit(exc.exit_code)
+    except SystemExit:
+        raise
+    except Exception as exc:  # click usage errors come through here in non-standalone mode
+        import click
+
+        if isinstance(exc, click.exceptions.ClickException):
+            exc.show()
+            sys.exit(exc.exit_code)
+        if isinstance(exc, click.exceptions.Abort):
+            print("aborted", file=sys.stderr)
+            sys.exit(130)
+        raise
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,9 @@
+"""CLI commands for agents (filled in by the agents work)."""
+
+from __future__ import annotations
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    """Add this area's commands to the main app."""

@@ -1,0 +1,9 @@
+"""CLI commands for tourney (filled in by the tourney work)."""
+
+from __future__ import annotations
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    """Add this area's commands to the main app."""

@@ -1,0 +1,69 @@
+"""Safe names and atomic writes: the only way user-chosen names become paths on disk.
+
+A tournament, entrant or track name from a user file ends up as a folder or file name, so it is
+checked here (no separators, no ``..``); every file is written to a temporary sibling and then
+renamed, so a crash never leaves a half-written file that a resume would trust.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from formula_tourney.errors import UserInputError
+
+_SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]{0,127}$")
+
+
+def check_name(name: str, what: str = "name") -> str:
+    """Return ``name`` if it can safely become one path component, else raise UserInputError."""
+    if (
+        not isinstance(name, str)
+        or not _SAFE_NAME.match(name)
+        or ".." in name
+        or "/" in name
+        or "\\" in name
+    ):
+        raise UserInputError(
+            f"invalid {what} {name!r}: use letters, digits, '_', '-', '.', '+' "
+            "(no path separators, no '..', at most 128 characters)"
+        )
+    return name
+
+
+def atomic_write(path: str | Path, write: Callable[[Path], None]) -> Path:
+    """Call ``write(tmp_path)`` and rename the result onto ``path`` (same folder, so atomic)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        write(tmp_path)
+        os.replace(tmp_path, path)
+    except BaseException:
+        tmp_path.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def atomic_write_text(path: str | Path, text: str) -> Path:
+    return atomic_write(path, lambda p: p.write_text(text, encoding="utf-8"))
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
+    return atomic_write(path, lambda p: p.write_bytes(data))
+
+
+def atomic_write_json(path: str | Path, obj: Any) -> Path:
+    return atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True, default=str) + "\n")
+
+
+def atomic_write_parquet(path: str | Path, frame: Any) -> Path:
+    """Write a pandas DataFrame as Parquet atomically."""
+    return atomic_write(path, lambda p: frame.to_parquet(p, index=False))

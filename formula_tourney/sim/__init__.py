@@ -1,0 +1,1 @@
+"""The racing simulator: tracks, batched car physics, telemetry and the Gymnasium env."""
