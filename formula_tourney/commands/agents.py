@@ -1,9 +1,168 @@
-"""CLI commands for agents (filled in by the agents work)."""
+"""CLI commands of the agents area: ``train`` one run, ``eval`` a checkpoint, list ``variants``.
+
+Heavy imports (torch, the simulator) happen inside the commands so ``--help`` stays instant.
+"""
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+from typing import Any
+
 import typer
+
+from formula_tourney.commands.output import emit, message
+from formula_tourney.errors import UserInputError
+
+RESULT_KEYS = (
+    "best_lap_s", "laps", "damage", "finished", "episodes", "env_steps", "updates", "seconds",
+)  # fmt: skip
+
+
+def _parse_sets(items: list[str], what: str) -> dict[str, Any]:
+    """``key=value`` pairs; values parse as JSON when they can (numbers, lists, booleans)."""
+    out: dict[str, Any] = {}
+    for item in items:
+        if "=" not in item:
+            raise UserInputError(f"{what} {item!r}: expected key=value")
+        key, raw = item.split("=", 1)
+        try:
+            out[key.strip()] = json.loads(raw)
+        except json.JSONDecodeError:
+            out[key.strip()] = raw
+    return out
+
+
+def _render_result(data: dict[str, Any]) -> Any:
+    def render(console: Any) -> None:
+        from rich.table import Table
+
+        table = Table(show_header=False)
+        for key in RESULT_KEYS:
+            value = data.get(key)
+            if isinstance(value, float) and key != "seconds":
+                value = f"{value:.3f}"
+            elif key == "seconds":
+                value = f"{value:.1f}"
+            table.add_row(key, "-" if value is None else str(value))
+        console.print(table)
+
+    return render
 
 
 def register(app: typer.Typer) -> None:
     """Add this area's commands to the main app."""
+
+    @app.command("train")
+    def train_cmd(
+        out: Path = typer.Option(..., "--out", help="Job folder to write (must not be finished)."),
+        variant: str = typer.Option("WIN1", help="Variant: WIN1/4/8, LSTM4/8, MS2/3/4, PER40k/1M."),
+        track: list[str] = typer.Option(  # noqa: B006
+            ["oval"], "--track", help="Training track; repeat to train on several."
+        ),
+        reference: str = typer.Option("centre", help="Reference line: centre|recorded|mincurv."),
+        lac: bool = typer.Option(False, "--lac", help="Add look-ahead curvature to observations."),
+        episodes: int = typer.Option(100, help="Training episodes."),
+        seed: int = typer.Option(0, help="Random seed."),
+        max_steps: int = typer.Option(1000, help="Control steps per training episode."),
+        test_every: int = typer.Option(10, help="Test every N episodes (and at the end)."),
+        test_track: list[str] = typer.Option(  # noqa: B006
+            [], "--test-track", help="Test track (repeatable); default: the training tracks."
+        ),
+        test_starts: int = typer.Option(3, help="Start positions per test."),
+        test_max_steps: int = typer.Option(1500, help="Control steps per test episode."),
+        device: str = typer.Option("auto", help="auto|cpu|cuda."),
+        threads: int = typer.Option(1, help="torch threads."),
+        set_: list[str] = typer.Option(  # noqa: B006
+            [], "--set", help="Variant hyperparameter override key=value (repeatable)."
+        ),
+        env_set: list[str] = typer.Option(  # noqa: B006
+            [], "--env-set", help="FormulaRacing-v0 config override key=value (repeatable)."
+        ),
+        as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
+    ) -> None:
+        """Train one DDPG variant and write its job folder (docs/CONTRACTS.md layout)."""
+        from formula_tourney.training.config import TrainConfig
+
+        cfg = TrainConfig.parse(
+            {
+                "variant": variant, "overrides": _parse_sets(set_, "--set"),
+                "train_tracks": track, "reference": reference, "lac": lac,
+                "episodes": episodes, "seed": seed, "max_steps": max_steps,
+                "test_every_episodes": test_every, "test_tracks": test_track,
+                "test_starts": test_starts, "test_max_steps": test_max_steps, "device": device,
+                "threads": threads, "env_overrides": _parse_sets(env_set, "--env-set"),
+            },
+            "train options",
+        )  # fmt: skip
+        from formula_tourney.agents.variants import get_variant
+
+        get_variant(cfg.variant, cfg.overrides)  # bad variant/overrides fail before any write
+        if (out / "summary.json").exists():
+            raise UserInputError(f"{out} holds a finished run (summary.json); choose another --out")
+        from formula_tourney.training.loop import train
+
+        def progress(p: dict[str, Any]) -> None:
+            best = p["best_lap_s"]
+            message(
+                f"episode {p['episode']}/{p['episodes']}  env steps {p['env_steps']}  "
+                f"updates {p['updates']}  best lap "
+                f"{'-' if best is None else f'{best:.2f} s'}  {p['seconds']:.0f} s"
+            )
+
+        summary = train(cfg, out, progress)
+        summary["out"] = str(out)
+        emit(summary, as_json, _render_result(summary))
+
+    @app.command("eval")
+    def eval_cmd(
+        checkpoint: Path = typer.Argument(..., help="A .pt checkpoint written by train."),
+        track: str = typer.Option("oval", "--track", help="Track to drive."),
+        starts: int = typer.Option(3, help="Start positions, evenly spaced over the lap."),
+        max_steps: int = typer.Option(1500, help="Control steps per test episode."),
+        reference: str | None = typer.Option(
+            None, help="Reference line (default: the one the model was trained with)."
+        ),
+        device: str = typer.Option("cpu", help="auto|cpu|cuda."),
+        as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
+    ) -> None:
+        """Drive a checkpoint greedily (epsilon = 0) and report its laps."""
+        if starts < 1 or max_steps < 1:
+            raise UserInputError("--starts and --max-steps must be >= 1")
+        if reference is not None and reference not in ("centre", "recorded", "mincurv"):
+            raise UserInputError(f"--reference {reference!r}: use centre, recorded or mincurv")
+        from formula_tourney.training.evaluate import evaluate_checkpoint
+
+        result = evaluate_checkpoint(str(checkpoint), track, starts, max_steps, device, reference)
+        emit(result, as_json, _render_result(result))
+
+    @app.command("variants")
+    def variants_cmd(
+        as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
+    ) -> None:
+        """List the registered DDPG variants and what each changes."""
+        from formula_tourney.agents.variants import VARIANTS, AgentConfig
+
+        default = AgentConfig()
+        rows = []
+        for name, v in VARIANTS.items():
+            changed = {
+                k: val
+                for k, val in v.model_dump().items()
+                if k not in ("name", "family") and val != getattr(default, k)
+            }
+            rows.append({"name": name, "family": v.family, "changes": changed})
+
+        def render(console: Any) -> None:
+            from rich.table import Table
+
+            table = Table("variant", "family", "changes from the defaults")
+            for r in rows:
+                table.add_row(
+                    r["name"],
+                    r["family"],
+                    ", ".join(f"{k}={v}" for k, v in r["changes"].items()) or "-",
+                )
+            console.print(table)
+
+        emit(rows, as_json, render)

@@ -1,9 +1,78 @@
-"""CLI commands for report (filled in by the report work)."""
+"""CLI: ``report`` (the paper's tables, statistics, figures) and ``replay`` (a lap as a GIF)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Annotated
+
 import typer
+
+from formula_tourney.errors import UserInputError
 
 
 def register(app: typer.Typer) -> None:
     """Add this area's commands to the main app."""
+
+    @app.command()
+    def report(
+        tournament: Annotated[str | None, typer.Option(
+            "--tournament", "-t",
+            help="Tournament name (a folder under --results) or path to its folder; default: "
+                 "the most recently written tournament.")] = None,
+        part: Annotated[str | None, typer.Option(
+            help="Report one part only.")] = None,
+        out: Annotated[Path | None, typer.Option(
+            help="Folder for written files (default: <tournament>/report).")] = None,
+        markdown: Annotated[bool, typer.Option(
+            "--markdown", help="Print GitHub Markdown (and write report.md with --out).")] = False,
+        latex: Annotated[bool, typer.Option(
+            "--latex", help="Write tables.tex (standalone, booktabs) and one .tex per table; "
+                            "prints the path.")] = False,
+        html: Annotated[bool, typer.Option(
+            "--html", help="Write a one-page report.html with tables and figures.")] = False,
+        figures: Annotated[bool | None, typer.Option(
+            "--figures/--no-figures",
+            help="Draw figures (PNG+PDF); default on for --latex, --html and with --out.")] = None,
+        results: Annotated[Path, typer.Option(
+            help="Folder holding tournament results.")] = Path("results"),
+        as_json: Annotated[bool, typer.Option(
+            "--json", help="Print one JSON document (tables with CIs, problems, files).")] = False,
+    ) -> None:
+        """Tables 1-3 of the paper with 95% CIs, gap to the reference limit, and figures."""
+        from formula_tourney.commands.output import emit
+        from formula_tourney.report.build import build_report
+
+        chosen = [name for name, on in (("markdown", markdown), ("latex", latex),
+                                        ("html", html)) if on]
+        if len(chosen) > 1:
+            raise UserInputError(f"choose one output format, not {' and '.join(chosen)}")
+        fmt = chosen[0] if chosen else "terminal"
+        built = build_report(tournament, results, part=part, out_dir=out, fmt=fmt,
+                             figures=figures)
+        emit(built.to_json(), as_json, built.render)
+
+    @app.command()
+    def replay(
+        checkpoint: Annotated[Path, typer.Argument(help="A checkpoint (.pt) of a trained job.")],
+        track: Annotated[str, typer.Option(help="Track to drive (name or path).")],
+        gif: Annotated[Path, typer.Option(help="GIF file to write.")],
+        laps: Annotated[int, typer.Option(min=1, help="Timed laps to record.")] = 1,
+        max_steps: Annotated[int, typer.Option(min=1, help="Control steps at most.")] = 3000,
+        frame_every: Annotated[int, typer.Option(
+            min=1, help="Keep every n-th control step as a frame.")] = 2,
+        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON document.")] = False,
+    ) -> None:
+        """Drive one lap with a trained actor (no exploration) and write it as a GIF."""
+        from formula_tourney.commands.output import emit
+        from formula_tourney.report.replay import replay as run_replay
+
+        summary = run_replay(checkpoint, track, gif, max_steps=max_steps,
+                             frame_every=frame_every, laps=laps)
+
+        def render(console) -> None:
+            laps_s = ", ".join(f"{t:.2f} s" for t in summary["lap_times_s"]) or "no timed lap"
+            console.print(f"{summary['gif']}: {summary['frames']} frames, {summary['steps']} "
+                          f"steps, ended by {summary['ending']}, laps: {laps_s}",
+                          markup=False, highlight=False)
+
+        emit(summary, as_json, render)

@@ -1,0 +1,111 @@
+"""Exploration noise: OU noise scaled by an annealed epsilon, plus the paper's brake exploration.
+
+Paper, "Extensions / Brake exploration": the OU values are attenuated by epsilon' (1 at the start,
+0 at the end of the exploration phase) and added to each of the three action dimensions
+independently with probability 0.1; stochastically a stronger noise goes on the brake while the
+throttle is lowered by a factor (1 - epsilon'), so exploration does not press both pedals at once.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+ACTION_LOW = np.array([-1.0, 0.0, 0.0], dtype=np.float32)
+ACTION_HIGH = np.array([1.0, 1.0, 1.0], dtype=np.float32)
+STEER, THROTTLE, BRAKE = 0, 1, 2
+
+
+def linear_epsilon(step: int, exploration_steps: int) -> float:
+    """Epsilon annealed linearly from 1 at step 0 to 0 at ``exploration_steps`` (then 0)."""
+    return float(max(0.0, 1.0 - step / max(1, exploration_steps)))
+
+
+class NoiseEvent(NamedTuple):
+    """What exploration did on one step (for tests and TensorBoard counts)."""
+
+    mask: np.ndarray  # bool (3,): which dimensions received OU noise
+    brake_explored: bool  # the brake-exploration rule fired on this step
+
+
+class OrnsteinUhlenbeck:
+    """Per-dimension OU process x <- x + theta (mu - x) + sigma N(0, 1), one step per call.
+
+    Unit time step (one control period): theta and sigma are per step, as in the TORCS DDPG code
+    the paper builds on.
+    """
+
+    def __init__(
+        self,
+        theta: np.ndarray,
+        sigma: np.ndarray,
+        rng: np.random.Generator,
+        mu: np.ndarray | None = None,
+    ) -> None:
+        self.theta = np.asarray(theta, dtype=np.float64)
+        self.sigma = np.asarray(sigma, dtype=np.float64)
+        self.mu = np.zeros_like(self.theta) if mu is None else np.asarray(mu, dtype=np.float64)
+        self.rng = rng
+        self.state = self.mu.copy()
+
+    def reset(self) -> None:
+        """Start a new episode at the mean (temporal correlation never crosses episodes)."""
+        self.state = self.mu.copy()
+
+    def sample(self) -> np.ndarray:
+        self.state = (
+            self.state
+            + self.theta * (self.mu - self.state)
+            + self.sigma * self.rng.standard_normal(self.state.shape)
+        )
+        return self.state.copy()
+
+
+class BrakeExplorationNoise:
+    """Exploration for (steer, throttle, brake) actions.
+
+    Each step: the OU sample, scaled by epsilon, is added to each dimension with probability
+    ``noise_prob``. With probability ``brake_prob`` (brake exploration) the brake is instead pulled
+    towards a pressure drawn from N(brake_mean, brake_sigma) by the fraction epsilon, and the
+    throttle is multiplied by (1 - epsilon) without noise: during brake exploration the throttle
+    can only go down, and at epsilon = 1 it is released fully.
+    """
+
+    def __init__(
+        self,
+        rng: np.random.Generator,
+        ou_theta: tuple[float, float, float] = (0.15, 0.15, 0.15),
+        ou_sigma: tuple[float, float, float] = (0.3, 0.3, 0.1),
+        noise_prob: float = 0.1,
+        brake_prob: float = 0.1,
+        brake_mean: float = 0.5,
+        brake_sigma: float = 0.2,
+    ) -> None:
+        self.rng = rng
+        self.ou = OrnsteinUhlenbeck(np.asarray(ou_theta), np.asarray(ou_sigma), rng)
+        self.noise_prob = noise_prob
+        self.brake_prob = brake_prob
+        self.brake_mean = brake_mean
+        self.brake_sigma = brake_sigma
+
+    def reset(self) -> None:
+        self.ou.reset()
+
+    def __call__(self, action: np.ndarray, epsilon: float) -> tuple[np.ndarray, NoiseEvent]:
+        """Return the explored action (clipped to the action box) and what was done."""
+        action = np.asarray(action, dtype=np.float64)
+        ou = self.ou.sample()  # advance every step so correlation does not depend on epsilon
+        mask = self.rng.random(3) < self.noise_prob
+        brake_explored = bool(self.rng.random() < self.brake_prob) and epsilon > 0.0
+        if epsilon <= 0.0:
+            return action.astype(np.float32), NoiseEvent(np.zeros(3, bool), False)
+        out = action + epsilon * ou * mask
+        if brake_explored:
+            target_brake = self.brake_mean + self.brake_sigma * self.rng.standard_normal()
+            out[BRAKE] = action[BRAKE] + epsilon * (target_brake - action[BRAKE])
+            out[THROTTLE] = action[THROTTLE] * (1.0 - epsilon)
+            mask = mask.copy()
+            mask[THROTTLE] = False
+        out = np.clip(out, ACTION_LOW, ACTION_HIGH).astype(np.float32)
+        return out, NoiseEvent(mask, brake_explored)

@@ -1,0 +1,344 @@
+"""The follower bot, our "Tita": drives any line with a speed profile and a steering controller.
+
+Speed: the target at each point is the line's quasi-steady-state (QSS) speed for our car times
+``speed_factor``; the demand is the acceleration that reaches the target at the place the car
+will be one control step later (the action is held for 200 ms, 3-16 m of track), turned into
+throttle or brake through the car's own force model, and capped so that the tyres keep grip
+for cornering (the simulator clips longitudinal force first and the lateral force shrinks on the
+friction ellipse, so a full pedal mid-corner would spin or plough the car).
+
+Steering: a curvature command ``k_line + e/L^2 + 2 zeta de/ds / L`` (a second-order lateral
+error law in distance, preview length ``L`` growing with speed), on the pose predicted half a
+control step ahead, converted to a wheel angle with the kinematic bicycle plus the car's linear
+understeer gradient, plus yaw damping on the difference between commanded and measured yaw
+rate. Pure pursuit was the first choice, but on a 15 m hairpin its steady-state corner cutting
+(about ``L^2 / 2R``) is metres; the feed-forward curvature removes it.
+
+``drive`` runs laps through ``FormulaRacingEnv`` and returns lap times, damage and a per-step
+trace (the recorded line is made from it).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, replace
+
+import numpy as np
+
+from formula_tourney.errors import UserInputError
+from formula_tourney.lines.speed_profile import CarModel, brake_force_limit_n, speed_profile
+from formula_tourney.sim.car_params import GRAVITY_MPS2, CarParams
+from formula_tourney.sim.reference import ReferenceLine
+from formula_tourney.sim.track import Track
+
+
+@dataclass(frozen=True)
+class FollowerConfig:
+    """Tuning of the follower. Defaults were tuned on oval/technical/flowing and gen tracks."""
+
+    speed_factor: float = 0.96
+    """Share of the QSS speed driven: the margin for what the QSS model leaves out (load
+    transfer, the tyre curve's falling side, 200 ms control)."""
+    preview_time_s: float = 0.6
+    """Preview length of the lateral error law per m/s of speed."""
+    min_preview_m: float = 8.0
+    """Shortest preview length (low speed): below it the 200 ms step makes the law ring."""
+    damping_ratio: float = 0.9
+    """Damping of the lateral error law."""
+    yaw_damping: float = 0.1
+    """Share of the yaw-rate error (commanded minus measured) added to the curvature command:
+    damps the heading and catches the rear when it steps out."""
+    slip_steering: bool = True
+    """Steer by the front axle's velocity and the wanted front slip angle (else kinematic
+    bicycle plus understeer gradient)."""
+    understeer_gain: float = 1.0
+    """Share of the car's linear understeer gradient added as feed-forward wheel angle."""
+    curvature_preview_s: float = 0.15
+    """Line curvature is read this far ahead (in time) to lead the car into corners."""
+    grip_use: float = 1.0
+    """Share of the friction ellipse the pedals may use."""
+    traction_use: float = 1.0
+    """Share of the rear axle's spare grip the throttle may use while cornering: drive force
+    takes cornering stiffness from the rear tyre, and the car oversteers before it slides."""
+    traction_transfer: float = 1.0
+    """Share of the longitudinal load transfer to the rear counted on for traction (1 = the
+    QSS forward pass's rule)."""
+    brake_lateral_cutoff: float = 0.0
+    """Braking fades to zero as cornering uses this share of grip: the simulated car turns
+    unstable (the rear axle loses load and grip) when it brakes hard in a corner, so the bot
+    brakes in a straight line and plans its speed profile with that rule."""
+    control_period_s: float = 0.2
+    """Matches the env's control period (the pose is predicted half of it ahead)."""
+
+    def validate(self) -> FollowerConfig:
+        for name, value in asdict(self).items():
+            if isinstance(value, bool):
+                continue
+            if not (isinstance(value, float | int) and math.isfinite(value) and value >= 0):
+                raise UserInputError(f"follower setting {name!r} must be >= 0, got {value!r}")
+        if self.speed_factor > 1.5 or self.grip_use > 1.0:
+            raise UserInputError("follower: speed_factor must be <= 1.5 and grip_use <= 1")
+        return self
+
+
+@dataclass
+class CarState:
+    """What the follower reads each step (the true state, not the telemetry)."""
+
+    x_m: float
+    y_m: float
+    yaw_rad: float
+    vx_mps: float
+    vy_mps: float
+    yaw_rate_radps: float
+
+
+@dataclass
+class Follower:
+    """The controller: ``act(state) -> (steer, throttle, brake)``."""
+
+    track: Track
+    offsets_m: np.ndarray
+    car: CarParams = field(default_factory=CarParams)
+    config: FollowerConfig = field(default_factory=FollowerConfig)
+
+    def __post_init__(self) -> None:
+        self.config.validate()
+        offsets = np.asarray(self.offsets_m, dtype=float)
+        if offsets.shape != (self.track.n,) or not np.all(np.isfinite(offsets)):
+            raise UserInputError(
+                f"line for track {self.track.name!r} must have {self.track.n} finite offsets"
+            )
+        self.line = ReferenceLine.from_offsets(self.track, offsets)
+        self.profile = speed_profile(self.track, offsets, self.car)
+        model = replace(CarModel.from_car(self.car),
+                        brake_lateral_cutoff=self.config.brake_lateral_cutoff)
+        self.plan = speed_profile(self.track, offsets, self.car, model)
+        self.target_mps = self.config.speed_factor * self.plan.speed_mps
+        self._hint = -1
+        c = self.car
+        wb = c.wheelbase_m
+        # Linear understeer gradient (rad per m/s^2 of lateral acceleration).
+        self._understeer = c.mass_kg / wb * (
+            c.cg_to_rear_m / c.cornering_stiffness_front_n_per_rad
+            - c.cg_to_front_m / c.cornering_stiffness_rear_n_per_rad
+        )
+        speeds = np.arange(0.0, 160.0, 0.5)
+        self._drive_grid = c.max_drive_force_n(speeds)
+
+    def reset(self) -> None:
+        self._hint = -1
+
+    def _drive_force(self, v: float) -> float:
+        return float(np.interp(v, np.arange(0.0, 160.0, 0.5), self._drive_grid))
+
+    def _interp(self, arr: np.ndarray, s: float) -> float:
+        t = self.track
+        s = s % t.length_m
+        i = int(t.index_at(s))
+        j = (i + 1) % t.n
+        s_j = t.s_m[j] if j else t.length_m
+        w = (s - t.s_m[i]) / max(s_j - t.s_m[i], 1e-9)
+        return float(arr[i] * (1 - w) + arr[j] * w)
+
+    def target_speed_mps(self, s_m: float) -> float:
+        return self._interp(self.target_mps, s_m)
+
+    def _slip_wheel_angle(self, st: CarState, v: float, k_total: float) -> float:
+        """Wheel angle = direction of the front axle's velocity + the slip angle that makes the
+        front tyres' share of the wanted lateral force (Fiala curve inverted in closed form).
+
+        Steering relative to the front axle's own velocity counter-steers by itself when the
+        rear slides out, which the kinematic law cannot do.
+        """
+        c = self.car
+        wb, lf, lr = c.wheelbase_m, c.cg_to_front_m, c.cg_to_rear_m
+        beta_front = math.atan2(st.vy_mps + lf * st.yaw_rate_radps, max(st.vx_mps, 1.0))
+        normal = c.mass_kg * GRAVITY_MPS2 + c.downforce_coef_n_per_mps2 * v * v
+        fz_front = normal * lr / wb
+        stiffness = c.cornering_stiffness_front_n_per_rad * normal / (c.mass_kg * GRAVITY_MPS2)
+        f_max = c.mu * fz_front
+        force = c.mass_kg * v * v * k_total * lr / wb
+        ratio = min(abs(force) / f_max, 0.98)
+        # Fiala: F / Fmax = 1 - (1 - u)^3 with u = C tan(alpha) / (3 Fmax).
+        u = 1.0 - (1.0 - ratio) ** (1.0 / 3.0)
+        alpha = math.atan(3.0 * f_max * u / stiffness)
+        return beta_front + math.copysign(alpha, force)
+
+    def act(self, st: CarState) -> tuple[float, float, float]:
+        cfg, c, t = self.config, self.car, self.track
+        speed = math.hypot(st.vx_mps, st.vy_mps)
+        v = max(st.vx_mps, 0.0)
+        # Pose half a control step ahead: the action is held for the whole step.
+        tau = 0.5 * cfg.control_period_s
+        cos_y, sin_y = math.cos(st.yaw_rad), math.sin(st.yaw_rad)
+        xp = st.x_m + (st.vx_mps * cos_y - st.vy_mps * sin_y) * tau
+        yp = st.y_m + (st.vx_mps * sin_y + st.vy_mps * cos_y) * tau
+        yaw_p = st.yaw_rad + st.yaw_rate_radps * tau
+        s, lateral, self._hint = t.project(xp, yp, self._hint)
+
+        # --- steering -----------------------------------------------------------------------
+        line_off = self._interp(self.line.offset_m, s)
+        i = int(t.index_at(s))
+        line_h = float(self.line.heading_rad[i])
+        e_lat = line_off - lateral  # > 0: the line is to the car's left
+        # Course angle (velocity direction) rather than yaw: a sliding car's nose lies.
+        course = yaw_p + (math.atan2(st.vy_mps, st.vx_mps) if st.vx_mps > 1.0 else 0.0)
+        e_head = math.atan2(math.sin(line_h - course), math.cos(line_h - course))
+        preview = max(cfg.min_preview_m, cfg.preview_time_s * v)
+        k_line = self._interp(self.line.curvature_1pm, s + cfg.curvature_preview_s * v)
+        k_cmd = (k_line + e_lat / preview**2 + 2.0 * cfg.damping_ratio * e_head / preview)
+        # Yaw damping as a curvature correction: the yaw-rate gain of the car is about
+        # v / wheelbase, so a wheel-angle gain would grow with speed and, with one 200 ms step
+        # of delay, ring above ~40 m/s; in curvature units the loop gain is speed-independent.
+        k_total = k_cmd + cfg.yaw_damping * (v * k_cmd - st.yaw_rate_radps) / max(v, 5.0)
+        # Understeer gradient: cornering stiffness grows with load (downforce), so it shrinks.
+        load = c.mass_kg * GRAVITY_MPS2 / (c.mass_kg * GRAVITY_MPS2
+                                           + c.downforce_coef_n_per_mps2 * v * v)
+        if cfg.slip_steering and v > 5.0:
+            wheel = self._slip_wheel_angle(st, v, k_total)
+        else:
+            wheel = (math.atan(c.wheelbase_m * k_total)
+                     + cfg.understeer_gain * self._understeer * load * v * v * k_cmd)
+        steer = max(-1.0, min(1.0, wheel / c.max_steer_rad))
+
+        # --- speed --------------------------------------------------------------------------
+        dt = cfg.control_period_s
+        reach = max(v * dt, 1.0)
+        # Slowest target over the next step and a bit: never arrive above any of them.
+        probe = np.linspace(s, s + reach + 0.5 * v * dt + 2.0, 6)
+        goal = min(self.target_speed_mps(p) for p in probe)
+        a_req = (goal * goal - v * v) / (2.0 * reach)
+        normal = c.mass_kg * GRAVITY_MPS2 + c.downforce_coef_n_per_mps2 * speed * speed
+        resist = c.drag_coef_n_per_mps2 * speed * speed + c.rolling_resistance * normal
+        # Lateral force now or asked for before the next decision, whichever is largest: a
+        # full pedal held into a turn-in (or an S-bend's switch) snapped the rear (measured).
+        k_ahead = max(abs(self._interp(self.line.curvature_1pm, p_s))
+                      for p_s in (s, s + 0.5 * v * cfg.control_period_s,
+                                  s + v * cfg.control_period_s))
+        lat_force = c.mass_kg * max(abs(speed * st.yaw_rate_radps), v * v * abs(k_cmd),
+                                    v * v * k_ahead)
+        grip = cfg.grip_use * c.mu * normal
+        throttle = brake = 0.0
+        if a_req >= 0.0:
+            # The rear axle carries the drive and its share of the cornering force. Its static
+            # share, not the larger share load transfer gives it: the simulated rear tyre
+            # loses cornering stiffness as drive force grows (friction ellipse at equal slip),
+            # and using the transferred load spun the car on corner exits (measured).
+            rear = c.cg_to_front_m / (c.wheelbase_m - cfg.traction_transfer * c.mu * c.cg_height_m)
+            rear_spare = cfg.traction_use * rear * math.sqrt(max(grip**2 - lat_force**2, 0.0))
+            force = min(c.mass_kg * a_req + resist, rear_spare)
+            full = self._drive_force(speed)
+            throttle = max(0.0, min(1.0, force / max(full, 1.0)))
+        else:
+            cap = brake_force_limit_n(c, speed, lat_force, cfg.grip_use,
+                                      cfg.brake_lateral_cutoff)
+            force = min(c.mass_kg * -a_req - resist, cap)
+            brake = max(0.0, min(1.0, force / c.max_brake_force_n))
+        return steer, throttle, brake
+
+
+def _car_state(env) -> CarState:
+    """The true state of car 0 from the env (the bot is a bot: it may read the simulator)."""
+    from formula_tourney.sim import kernels as K
+
+    base = env.unwrapped
+    batch = getattr(base, "_b", None)
+    state = batch.state if batch is not None else base.state
+    row = np.asarray(state)[0] if np.ndim(state) == 2 else np.asarray(state)
+    return CarState(float(row[K.ST_X]), float(row[K.ST_Y]), float(row[K.ST_PSI]),
+                    float(row[K.ST_VX]), float(row[K.ST_VY]), float(row[K.ST_R]))
+
+
+def drive(
+    track: Track,
+    offsets: np.ndarray,
+    laps: int = 2,
+    car: CarParams | None = None,
+    *,
+    config: FollowerConfig | None = None,
+    start_s_m: float | None = None,
+    max_steps: int | None = None,
+    env_config: dict | None = None,
+) -> dict:
+    """Drive ``laps`` timed laps of the line ``offsets`` on ``track`` in the simulator.
+
+    The car starts at rest 50 m before the line (the env's default), so the first timed lap is
+    a flying lap. Returns ``lap_times_s``, ``lap_damage``, ``best_lap_s`` (best lap with zero
+    damage, NaN if none), ``damage``, ``finished`` (all laps done, no termination),
+    ``termination``, ``steps`` and ``trace`` (per step: time_s, distance_m, s_m, lateral_m,
+    x_m, y_m, speed_kmh, steer, throttle, brake, lap = start-line crossings so far).
+    """
+    from formula_tourney.sim.env import FormulaRacingEnv
+
+    if laps < 1:
+        raise UserInputError(f"laps must be >= 1, got {laps}")
+    car = car or CarParams()
+    cfg = (config or FollowerConfig()).validate()
+    bot = Follower(track, np.asarray(offsets, dtype=float), car, cfg)
+    if max_steps is None:
+        # Generous: twice the QSS time for the laps asked plus the run to the line.
+        lap_steps = bot.profile.lap_time_s / cfg.control_period_s
+        max_steps = int(2.0 * lap_steps * (laps + 1) / cfg.speed_factor) + 200
+    env_cfg = {
+        "track": track,
+        "reference_line": np.asarray(offsets, dtype=float),
+        "control_period_s": cfg.control_period_s,
+        "max_steps": max_steps,
+        "car": car.model_dump(),
+    }
+    env_cfg.update(env_config or {})
+    env = FormulaRacingEnv(config=env_cfg)
+    options = {} if start_s_m is None else {"start_s_m": float(start_s_m)}
+    _, info = env.reset(seed=0, options=options)
+    bot.reset()
+    trace: dict[str, list] = {k: [] for k in (
+        "time_s", "distance_m", "s_m", "lateral_m", "x_m", "y_m", "speed_kmh", "steer",
+        "throttle", "brake", "lap")}
+    crossings = 0
+    prev_s = float(info.get("s_m", 0.0))
+    termination = None
+    steps = 0
+    while True:
+        st = _car_state(env)
+        action = bot.act(st)
+        _, _, terminated, truncated, info = env.step(np.asarray(action, dtype=np.float32))
+        steps += 1
+        s_now = float(info["s_m"])
+        if prev_s - s_now > 0.5 * track.length_m:
+            crossings += 1
+        elif s_now - prev_s > 0.5 * track.length_m:
+            crossings -= 1
+        prev_s = s_now
+        st = _car_state(env)
+        trace["time_s"].append(steps * cfg.control_period_s)
+        trace["distance_m"].append(float(info["distance_m"]))
+        trace["s_m"].append(s_now)
+        trace["lateral_m"].append(float(info["lateral_m"]))
+        trace["x_m"].append(st.x_m)
+        trace["y_m"].append(st.y_m)
+        trace["speed_kmh"].append(float(info["speed_mps"]) * 3.6)
+        trace["steer"].append(action[0])
+        trace["throttle"].append(action[1])
+        trace["brake"].append(action[2])
+        trace["lap"].append(crossings)
+        if terminated or truncated:
+            termination = info.get("termination") or ("max_steps" if truncated else "ended")
+            break
+        if int(info["laps"]) >= laps:
+            break
+    env.close()
+    lap_times = [float(x) for x in info.get("lap_times_s", [])]
+    lap_damage = [float(x) for x in info.get("lap_damage", [0.0] * len(lap_times))]
+    clean = [t for t, d in zip(lap_times, lap_damage, strict=False) if d == 0.0]
+    return {
+        "lap_times_s": lap_times,
+        "lap_damage": lap_damage,
+        "best_lap_s": float(min(clean)) if clean else float("nan"),
+        "damage": float(info.get("damage", 0.0)),
+        "finished": termination is None and len(lap_times) >= laps,
+        "termination": termination,
+        "steps": steps,
+        "profile_lap_s": bot.profile.lap_time_s,
+        "trace": trace,
+    }

@@ -1,0 +1,523 @@
+"""The Gymnasium envs: one car (``FormulaRacing-v0``) and N independent cars (its vector entry).
+
+Both wrap the same core, :class:`_Batch`: preallocated state/observation/output arrays and one
+compiled call per step (:func:`kernels.step_cars`), so the Python side of a step is a few array
+reads. Measured figures and the reasons for this shape are in ``docs/sim.md``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from formula_tourney.errors import UserInputError
+from formula_tourney.sim import kernels as K
+from formula_tourney.sim.car import car_from_overrides, pack_params, set_start
+from formula_tourney.sim.reference import ReferenceLine
+from formula_tourney.sim.sensors import observation_bounds, observation_names, track_geometry
+from formula_tourney.sim.track import Track
+
+TERMINATIONS = {K.TERM_OFF_TRACK: "off_track", K.TERM_BACKWARDS: "backwards", K.TERM_SLOW: "slow"}
+DEFAULT_START_BEFORE_LINE_M = 50.0
+"""Default start: this far before the start line, so the first crossing starts a flying lap."""
+
+
+class _NoLap(float):
+    """NaN for "no lap yet" whose equality is reflexive.
+
+    ``info`` reports ``last_lap_s``/``best_lap_s`` as NaN before a lap (docs/CONTRACTS.md), and
+    Gymnasium's ``check_env`` compares infos of two identical runs with ``==``, which a plain NaN
+    fails. Arithmetic, ``math.isnan`` and ``np.isnan`` see an ordinary NaN.
+    """
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, float) and math.isnan(other)
+
+    def __ne__(self, other: object) -> bool:
+        return not self.__eq__(other)
+
+    __hash__ = float.__hash__
+
+
+NO_LAP = _NoLap("nan")
+
+
+def default_config() -> dict[str, Any]:
+    """Every config key with its default (highway-env style; a user's dict is merged over it).
+
+    Keys beyond docs/CONTRACTS.md: ``slow_penalty`` (reward on a slow end is ``-slow_penalty``:
+    DESIGN.md records that a slow end without penalty taught a run to stop on track) and
+    ``grass_width_m`` (grass beyond each asphalt edge before the wall).
+    """
+    return {
+        "track": "oval",
+        "reference_line": "centre",
+        "lac": False,
+        "lac_distances_m": [20.0, 40.0, 60.0, 80.0],
+        "control_period_s": 0.2,
+        "physics_hz": 100.0,
+        "max_steps": 1000,
+        "terminate_off_track": True,
+        "terminate_backwards": True,
+        "terminate_slow": True,
+        "slow_speed_kmh": 10.0,
+        "slow_patience_steps": 25,
+        "slow_penalty": 100.0,
+        "damage_weight": 0.01,
+        "random_start": False,
+        "start_speed_mps": 0.0,
+        "grass_width_m": 5.0,
+        "car": {},
+    }
+
+
+def _num(cfg: Mapping, key: str, lo: float | None = None, hi: float | None = None,
+         lo_open: bool = False) -> float:
+    v = cfg[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+        raise UserInputError(f"config key '{key}': expected a number, got {v!r}")
+    v = float(v)
+    if not math.isfinite(v) or (lo is not None and (v <= lo if lo_open else v < lo)) or (
+            hi is not None and v > hi):
+        bound = f"{'>' if lo_open else '>='} {lo}" if lo is not None else ""
+        if hi is not None:
+            bound += f"{' and ' if bound else ''}<= {hi}"
+        raise UserInputError(f"config key '{key}': {v!r} is out of range (must be {bound})")
+    return v
+
+
+def _int(cfg: Mapping, key: str, lo: int) -> int:
+    v = cfg[key]
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+        raise UserInputError(f"config key '{key}': expected an integer >= {lo}, got {v!r}")
+    return int(v)
+
+
+def _bool(cfg: Mapping, key: str) -> bool:
+    v = cfg[key]
+    if not isinstance(v, (bool, np.bool_)):
+        raise UserInputError(f"config key '{key}': expected true or false, got {v!r}")
+    return bool(v)
+
+
+def resolve_config(config: Mapping[str, Any] | None) -> dict[str, Any]:
+    """Merge ``config`` over :func:`default_config` and check every value.
+
+    Unknown keys are an error (stricter than highway-env, which ignores them silently).
+    """
+    cfg = default_config()
+    if config is None:
+        return cfg
+    if not isinstance(config, Mapping):
+        raise UserInputError(f"config: expected a dict, got {type(config).__name__}")
+    unknown = sorted(set(config) - set(cfg))
+    if unknown:
+        raise UserInputError(
+            f"config: unknown key(s) {', '.join(map(repr, unknown))}; known keys: "
+            f"{', '.join(sorted(cfg))}")
+    cfg.update(config)
+    return cfg
+
+
+class _Batch:
+    """N cars on one track: config, compiled-kernel arrays and per-car episode bookkeeping."""
+
+    def __init__(self, n: int, config: Mapping[str, Any] | None):
+        cfg = resolve_config(config)
+        self.config = cfg
+        self.track = self._load_track(cfg["track"])
+        self.reference = self._reference(cfg["reference_line"])
+        self.car = car_from_overrides(self._car_dict(cfg["car"]))
+        arrays = pack_params(self.car)
+        self.params, self.torque, self.gears = arrays.params, arrays.torque, arrays.gears
+        self.lac = _bool(cfg, "lac")
+        lac_d = cfg["lac_distances_m"]
+        if (not isinstance(lac_d, (list, tuple, np.ndarray)) or len(lac_d) == 0
+                or not all(isinstance(d, (int, float, np.integer, np.floating))
+                           and not isinstance(d, bool) and 0 < float(d) < self.track.length_m
+                           for d in lac_d)):
+            raise UserInputError("config key 'lac_distances_m': expected a non-empty list of "
+                                 f"distances in (0, track length), got {lac_d!r}")
+        self.lac_d = np.array(lac_d, dtype=float)
+        period = _num(cfg, "control_period_s", 0.0, 10.0, lo_open=True)
+        hz = _num(cfg, "physics_hz", 100.0, 10000.0)
+        self.n_sub = max(int(round(period * hz)), 1)
+        self.period_s = period
+        self.max_steps = _int(cfg, "max_steps", 1)
+        self.slow_patience = _int(cfg, "slow_patience_steps", 1)
+        self.start_speed = _num(cfg, "start_speed_mps", 0.0, 100.0)
+        self.random_start = _bool(cfg, "random_start")
+        self.grass_w = _num(cfg, "grass_width_m", 0.0, 100.0)
+        self.cfg = np.zeros(K.N_CFG)
+        c = self.cfg
+        c[K.C_DT] = period
+        c[K.C_NSUB] = self.n_sub
+        c[K.C_GRASS_W] = self.grass_w
+        c[K.C_MAX_STEPS] = self.max_steps
+        c[K.C_TERM_OFF] = _bool(cfg, "terminate_off_track")
+        c[K.C_TERM_BACK] = _bool(cfg, "terminate_backwards")
+        c[K.C_TERM_SLOW] = _bool(cfg, "terminate_slow")
+        c[K.C_SLOW_MPS] = _num(cfg, "slow_speed_kmh", 0.0, 400.0) / 3.6
+        c[K.C_SLOW_PATIENCE] = self.slow_patience
+        c[K.C_DMG_W] = _num(cfg, "damage_weight", 0.0)
+        c[K.C_SLOW_PEN] = _num(cfg, "slow_penalty", 0.0)
+        c[K.C_LAC] = 1.0 if self.lac else 0.0
+        c[K.C_LENGTH] = self.track.length_m
+        self.geom = track_geometry(self.track, self.reference)
+        self.names = observation_names(self.lac, self.lac_d)
+        self.obs_low, self.obs_high = observation_bounds(self.lac, len(self.lac_d))
+        n_obs = len(self.names)
+        self.n = n
+        self.state = np.zeros((n, K.N_STATE))
+        self.actions = np.zeros((n, 3))
+        self.integrate = np.zeros(n, dtype=np.uint8)
+        self.obs = np.zeros((n, n_obs), dtype=np.float32)
+        self.out = np.zeros((n, K.N_OUT))
+        self.lap_times: list[list[float]] = [[] for _ in range(n)]
+        self.lap_damage: list[list[float]] = [[] for _ in range(n)]
+        self.lap_start_damage = np.zeros(n)
+        self.best_lap = np.full(n, np.nan)
+        self.termination: list[str | None] = [None] * n
+
+    @staticmethod
+    def _load_track(spec: Any) -> Track:
+        if isinstance(spec, Track):
+            return spec
+        if isinstance(spec, str):
+            try:
+                from formula_tourney.sim.catalog import load_track
+            except ImportError as exc:  # the catalog ships with the built-in tracks
+                raise UserInputError(
+                    f"config key 'track': cannot resolve {spec!r} (track catalog unavailable: "
+                    f"{exc}); pass a Track instance") from None
+            return load_track(spec)
+        raise UserInputError(
+            f"config key 'track': expected a track name or a Track, got {type(spec).__name__}")
+
+    def _reference(self, spec: Any) -> ReferenceLine:
+        if isinstance(spec, str):
+            if spec != "centre":
+                raise UserInputError(
+                    f"config key 'reference_line': {spec!r} is not 'centre'; pass an array of "
+                    "offsets (lines.registry.reference_offsets) for other lines")
+            return ReferenceLine.centre(self.track)
+        off = np.asarray(spec, dtype=float)
+        tr = self.track
+        if off.shape != (tr.n,) or not np.all(np.isfinite(off)):
+            raise UserInputError(
+                f"config key 'reference_line': expected {tr.n} finite offsets (one per track "
+                f"sample), got shape {off.shape}")
+        if np.any(off > tr.width_left_m) or np.any(off < -tr.width_right_m):
+            raise UserInputError("config key 'reference_line': offsets leave the asphalt")
+        return ReferenceLine.from_offsets(tr, off)
+
+    @staticmethod
+    def _car_dict(spec: Any) -> dict:
+        if not isinstance(spec, Mapping):
+            raise UserInputError(f"config key 'car': expected a dict, got {spec!r}")
+        return dict(spec)
+
+    def start_pose(self, s_m: float) -> tuple[float, float, float]:
+        """Point and heading of the reference line at track position ``s_m``."""
+        tr, ref = self.track, self.reference
+        s = float(s_m) % tr.length_m
+        i = int(tr.index_at(s))
+        j = (i + 1) % tr.n
+        s_next = tr.s_m[j] if j else tr.length_m
+        t = (s - tr.s_m[i]) / max(s_next - tr.s_m[i], 1e-12)
+        x = ref.x_m[i] + t * (ref.x_m[j] - ref.x_m[i])
+        y = ref.y_m[i] + t * (ref.y_m[j] - ref.y_m[i])
+        dh = math.remainder(ref.heading_rad[j] - ref.heading_rad[i], 2 * math.pi)
+        return float(x), float(y), float(ref.heading_rad[i] + t * dh)
+
+    def reset_car(self, c: int, rng: np.random.Generator, options: Mapping | None) -> None:
+        """Place car ``c`` for a new episode; the next kernel call only observes it."""
+        opts = dict(options or {})
+        unknown = sorted(set(opts) - {"start_s_m", "start_speed_mps"})
+        if unknown:
+            raise UserInputError(f"reset options: unknown key(s) {unknown}; known: "
+                                 "start_s_m, start_speed_mps")
+        if "start_s_m" in opts:
+            s = _num(opts, "start_s_m")
+        elif self.random_start:
+            s = float(rng.uniform(0.0, self.track.length_m))
+        else:
+            s = self.track.length_m - DEFAULT_START_BEFORE_LINE_M
+        speed = _num(opts, "start_speed_mps", 0.0, 100.0) if "start_speed_mps" in opts \
+            else self.start_speed
+        x, y, h = self.start_pose(s)
+        set_start(self.state[c], self.car, x, y, h, speed)
+        self.integrate[c] = 0
+        self.lap_times[c] = []
+        self.lap_damage[c] = []
+        self.lap_start_damage[c] = 0.0
+        self.best_lap[c] = np.nan
+        self.termination[c] = None
+
+    def run(self) -> None:
+        """One compiled call: every car with ``integrate`` set advances one control period."""
+        K.step_cars(self.state, self.actions, self.integrate, self.params, self.torque,
+                    self.gears, self.geom, self.cfg, self.lac_d, self.obs, self.out)
+
+    def record_lap(self, c: int, lap_time_s: float) -> None:
+        dmg = float(self.state[c, K.ST_DAMAGE])
+        self.lap_times[c] = self.lap_times[c] + [lap_time_s]
+        self.lap_damage[c] = self.lap_damage[c] + [dmg - self.lap_start_damage[c]]
+        self.lap_start_damage[c] = dmg
+        if not lap_time_s >= self.best_lap[c]:  # also true while best is nan
+            self.best_lap[c] = lap_time_s
+
+    def info(self, c: int) -> dict[str, Any]:
+        st = self.state[c].tolist()
+        laps = self.lap_times[c]
+        return {
+            "lap_times_s": list(laps),
+            "lap_damage": list(self.lap_damage[c]),
+            "last_lap_s": laps[-1] if laps else NO_LAP,
+            "best_lap_s": float(self.best_lap[c]) if laps else NO_LAP,
+            "laps": len(laps),
+            "damage": st[K.ST_DAMAGE],
+            "distance_m": st[K.ST_DIST],
+            "s_m": st[K.ST_S],
+            "lateral_m": st[K.ST_LAT],
+            "speed_mps": math.hypot(st[K.ST_VX], st[K.ST_VY]),
+            "off_track": st[K.ST_OFF] > 0.5,
+            "termination": self.termination[c],
+        }
+
+
+_DOC_TABLE = """
+    | Index | Name              | Min | Max | Unit (before normalisation)                      |
+    |-------|-------------------|-----|-----|--------------------------------------------------|
+    | 0     | angle             | -1  | 1   | rad / pi: car heading minus reference heading    |
+    | 1-19  | track_-90..track_90 | -1 | 1  | m / 200: range finders, -1 when off track        |
+    | 20    | trackPos          | -inf| inf | (lateral - reference offset) / half width        |
+    | 21    | speedX            | -inf| inf | m/s / 83.33 (body longitudinal)                  |
+    | 22    | speedY            | -inf| inf | m/s / 83.33 (body lateral, left > 0)             |
+    | 23    | speedZ            | -1  | 1   | m/s / 83.33, always 0 (flat tracks)             |
+    | 24-27 | wheelSpinVel_FL..RR | -inf| inf | rad/s / 250                                   |
+    | 28    | rpm               | 0   | inf | rpm / 10000                                      |
+    | 29-32 | lac_20..lac_80    | -inf| inf | 1/m * 10: reference curvature ahead (lac only)   |
+"""
+
+
+class FormulaRacingEnv(gymnasium.Env):
+    __doc__ = f"""A racing car at its grip limit on a closed track, observed through telemetry.
+
+    ## Description
+    A dynamic single-track car (Fiala tyres on a friction ellipse, aero downforce and drag,
+    engine torque curve with an automatic gearbox, rear-wheel drive, brakes limited by grip)
+    laps a track of asphalt bordered by grass (lower grip) and walls (damage). The task of the
+    Formula RL paper: drive as fast as possible from telemetry alone.
+
+    ## Action Space
+    `Box([-1, 0, 0], [1, 1, 1], float32)`: steer (> 0 turns left, 1 = full lock), throttle,
+    brake. Values outside are clipped.
+
+    ## Observation Space
+    Flat float32, 29 values (33 with `lac`); names from
+    `formula_tourney.sim.sensors.observation_names(lac)`:
+    {_DOC_TABLE}
+    ## Rewards
+    Per step `Vx * (cos(theta) - |sin(theta)| - |trackPos|)` with `Vx` in m/s and `theta` the
+    angle to the reference line, minus `damage_weight` times the damage added in the step.
+    A step that ends the episode off track or backwards gives -1; a slow end `-slow_penalty`.
+
+    ## Starting State
+    On the reference line, `start_s_m` (default 50 m before the start line, or uniform with
+    `random_start`), heading along the line, at `start_speed_mps` (default at rest). The lap
+    clock starts at the first crossing of the start line; each later crossing completes a lap,
+    its time interpolated inside the physics substep.
+
+    ## Episode End
+    Terminated: off the asphalt (`terminate_off_track`), facing backwards (`terminate_backwards`),
+    or progress below `slow_speed_kmh` for `slow_patience_steps` steps (`terminate_slow`).
+    Truncated: `max_steps` control steps. `info["termination"]` names the reason.
+
+    ## Arguments
+    `gymnasium.make("FormulaRacing-v0", config={{...}}, render_mode="rgb_array")`; `config` is
+    merged over `default_config()` (unknown keys are an error): track (name or Track),
+    reference_line ("centre" or offsets per sample), lac, lac_distances_m, control_period_s,
+    physics_hz (>= 100), max_steps, terminate_off_track, terminate_backwards, terminate_slow,
+    slow_speed_kmh, slow_patience_steps, slow_penalty, damage_weight, random_start,
+    start_speed_mps, grass_width_m, car (CarParams overrides).
+    `reset(seed=..., options={{"start_s_m": float, "start_speed_mps": float}})`.
+
+    ## Version History
+    * v0: initial version.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 5}
+
+    def __init__(self, config: Mapping[str, Any] | None = None, render_mode: str | None = None):
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise UserInputError(f"render_mode {render_mode!r}: only 'rgb_array' is supported")
+        self.render_mode = render_mode
+        self._b = _Batch(1, config)
+        self.config = self._b.config
+        self.track = self._b.track
+        self.reference = self._b.reference
+        self.car = self._b.car
+        self.observation_names = self._b.names
+        self.metadata = {**self.metadata, "render_fps": 1.0 / self._b.period_s}
+        self.action_space = spaces.Box(np.array([-1, 0, 0], np.float32),
+                                       np.array([1, 1, 1], np.float32), dtype=np.float32)
+        self.observation_space = spaces.Box(self._b.obs_low, self._b.obs_high, dtype=np.float32)
+        self._renderer = None
+        self._act_row = self._b.actions[0]
+        self._out_row = self._b.out[0]
+        self._obs_row = self._b.obs[0]
+
+    @staticmethod
+    def default_config() -> dict[str, Any]:
+        return default_config()
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        b = self._b
+        b.reset_car(0, self.np_random, options)
+        b.run()
+        b.integrate[0] = 1
+        return self._obs_row.copy(), b.info(0)
+
+    def step(self, action):
+        b = self._b
+        self._act_row[:] = action
+        b.run()
+        out = self._out_row
+        lap = out[K.O_LAP_TIME]
+        if lap == lap:
+            b.record_lap(0, float(lap))
+        term = int(out[K.O_TERM])
+        truncated = out[K.O_TRUNC] > 0.5
+        if term:
+            b.termination[0] = TERMINATIONS[term]
+        elif truncated:
+            b.termination[0] = "max_steps"
+        return self._obs_row.copy(), float(out[K.O_REWARD]), term != 0, bool(truncated), b.info(0)
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        if self._renderer is None:
+            from formula_tourney.sim.render import TrackRenderer
+            self._renderer = TrackRenderer(self.track, self._b.grass_w)
+        return self._renderer.frame(self._b.state, self.car)
+
+
+class FormulaRacingVectorEnv(VectorEnv):
+    """``num_envs`` independent cars on one track, stepped by one compiled call.
+
+    Gymnasium's next-step autoreset: the step after a car's episode ended resets that car (its
+    action is ignored), returning its first observation with reward 0 and both flags false.
+    ``info`` holds arrays over cars (``_key`` masks all true); see ``FormulaRacingEnv`` for
+    the spaces, reward and ends.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 5,
+                "autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(self, num_envs: int = 1, config: Mapping[str, Any] | None = None,
+                 render_mode: str | None = None, **kwargs: Any):
+        if kwargs:
+            raise UserInputError(f"FormulaRacingVectorEnv: unknown argument(s) {sorted(kwargs)}")
+        if not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+            raise UserInputError(f"num_envs: expected an integer >= 1, got {num_envs!r}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise UserInputError(f"render_mode {render_mode!r}: only 'rgb_array' is supported")
+        self.render_mode = render_mode
+        self.num_envs = int(num_envs)
+        self._b = _Batch(self.num_envs, config)
+        self.config = self._b.config
+        self.track = self._b.track
+        self.car = self._b.car
+        self.observation_names = self._b.names
+        self.single_action_space = spaces.Box(np.array([-1, 0, 0], np.float32),
+                                              np.array([1, 1, 1], np.float32), dtype=np.float32)
+        self.single_observation_space = spaces.Box(self._b.obs_low, self._b.obs_high,
+                                                   dtype=np.float32)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self._needs_reset = np.zeros(self.num_envs, dtype=bool)
+        self._renderer = None
+        self._mask = np.ones(self.num_envs, dtype=bool)
+
+    def reset(self, *, seed: int | list[int] | None = None, options: dict | None = None):
+        if isinstance(seed, list):
+            seed = seed[0] if seed else None
+        self._np_random, self._np_random_seed = gymnasium.utils.seeding.np_random(seed)
+        b = self._b
+        for c in range(self.num_envs):
+            b.reset_car(c, self._np_random, options)
+        b.run()
+        b.integrate[:] = 1
+        self._needs_reset[:] = False
+        return b.obs.copy(), self._infos()
+
+    def step(self, actions):
+        b = self._b
+        b.actions[:] = actions
+        resetting = np.flatnonzero(self._needs_reset)
+        for c in resetting:
+            b.reset_car(int(c), self.np_random, None)
+        b.run()
+        b.integrate[:] = 1
+        out = b.out
+        laps = np.flatnonzero(out[:, K.O_LAP_TIME] == out[:, K.O_LAP_TIME])
+        for c in laps:
+            b.record_lap(int(c), float(out[c, K.O_LAP_TIME]))
+        term_code = out[:, K.O_TERM]
+        terminated = term_code > 0
+        truncated = out[:, K.O_TRUNC] > 0.5
+        ended = np.flatnonzero(terminated | truncated)
+        for c in ended:
+            code = int(term_code[c])
+            b.termination[c] = TERMINATIONS[code] if code else "max_steps"
+        self._needs_reset = terminated | truncated
+        return (b.obs.copy(), out[:, K.O_REWARD].copy(), terminated, truncated, self._infos())
+
+    def _infos(self) -> dict[str, Any]:
+        b = self._b
+        st = b.state
+        lap_times = np.empty(self.num_envs, dtype=object)
+        lap_damage = np.empty(self.num_envs, dtype=object)
+        termination = np.empty(self.num_envs, dtype=object)
+        last = np.full(self.num_envs, np.nan)
+        for c in range(self.num_envs):
+            lap_times[c] = b.lap_times[c]
+            lap_damage[c] = b.lap_damage[c]
+            termination[c] = b.termination[c]
+            if b.lap_times[c]:
+                last[c] = b.lap_times[c][-1]
+        info = {
+            "lap_times_s": lap_times,
+            "lap_damage": lap_damage,
+            "last_lap_s": last,
+            "best_lap_s": b.best_lap.copy(),
+            "laps": np.array([len(t) for t in b.lap_times]),
+            "damage": st[:, K.ST_DAMAGE].copy(),
+            "distance_m": st[:, K.ST_DIST].copy(),
+            "s_m": st[:, K.ST_S].copy(),
+            "lateral_m": st[:, K.ST_LAT].copy(),
+            "speed_mps": np.hypot(st[:, K.ST_VX], st[:, K.ST_VY]),
+            "off_track": st[:, K.ST_OFF] > 0.5,
+            "termination": termination,
+        }
+        for key in list(info):
+            info["_" + key] = self._mask
+        return info
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        if self._renderer is None:
+            from formula_tourney.sim.render import TrackRenderer
+            self._renderer = TrackRenderer(self.track, self._b.grass_w)
+        return self._renderer.frame(self._b.state, self.car)

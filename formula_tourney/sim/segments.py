@@ -1,0 +1,448 @@
+"""Segment tracks: the TOML format, its validation, and sampling through highway-env lanes.
+
+A track is authored as a list of straights and arcs (spirals are arcs with an end radius). Each
+segment becomes highway-env ``StraightLane``/``CircularLane`` objects chained end to start, so the
+same geometry can be drawn by highway-env's viewer; the lanes are then sampled once, at a uniform
+~1 m arc-length spacing, into the arrays of :class:`~formula_tourney.sim.track.Track`. TORCS
+imports and the procedural generator produce the same :class:`TrackSpec`, so every track in the
+project goes through the closure and overlap checks here.
+
+Format (one file per track)::
+
+    name = "oval"                 # optional, defaults to the file name
+    description = "..."           # optional, free text
+    width_m = 18.0                # or width_left_m and width_right_m
+    [[segment]]
+    type = "straight"             # the start line is the start of the first segment
+    length_m = 300.0
+    [[segment]]
+    type = "arc"
+    radius_m = 200.0
+    angle_deg = 180.0             # sign gives the direction: left (counter-clockwise) > 0
+    end_radius_m = 150.0          # optional: a spiral, radius linear in turned angle
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from formula_tourney.errors import UserInputError
+from formula_tourney.safeio import check_name
+from formula_tourney.sim.track import SAMPLE_SPACING_M, Track
+
+CLOSURE_TOLERANCE_M = 1.0
+"""A track whose end misses its start by more than this is refused (issue 2)."""
+
+HEADING_TOLERANCE_DEG = 2.0
+"""A track that returns to its start at a kink sharper than this is refused."""
+
+SPIRAL_STEP_M = 2.0
+"""Sub-arc length of a spiral: stepped radii this short keep curvature within ~1% of linear."""
+
+OVERLAP_MARGIN_M = 2.0
+"""Asphalt of two distant parts of a track must be at least this far apart."""
+
+TOP_KEYS = ("name", "description", "width_m", "width_left_m", "width_right_m", "segment")
+STRAIGHT_KEYS = ("type", "length_m", "name")
+ARC_KEYS = ("type", "radius_m", "angle_deg", "end_radius_m", "name")
+SEGMENT_TYPES = ("straight", "arc")
+MIN_WIDTH_M = 3.0
+MAX_WIDTH_M = 60.0
+
+
+@dataclass(frozen=True)
+class SegmentSpec:
+    """One authored segment. ``angle_deg > 0`` turns left; straights have no radius or angle."""
+
+    type: str
+    length_m: float = 0.0
+    radius_m: float = 0.0
+    angle_deg: float = 0.0
+    end_radius_m: float | None = None
+    name: str = ""
+
+    @property
+    def arc_length_m(self) -> float:
+        """Centreline length; a spiral's radius is linear in angle, so its mean radius is exact."""
+        if self.type == "straight":
+            return self.length_m
+        end = self.radius_m if self.end_radius_m is None else self.end_radius_m
+        return abs(math.radians(self.angle_deg)) * 0.5 * (self.radius_m + end)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The TOML table of this segment (only the keys it uses)."""
+        out: dict[str, Any] = {"type": self.type}
+        if self.type == "straight":
+            out["length_m"] = self.length_m
+        else:
+            out["radius_m"] = self.radius_m
+            out["angle_deg"] = self.angle_deg
+            if self.end_radius_m is not None:
+                out["end_radius_m"] = self.end_radius_m
+        if self.name:
+            out["name"] = self.name
+        return out
+
+
+@dataclass(frozen=True)
+class TrackSpec:
+    """A whole authored track: widths and the segment list, start line at segment 0's start."""
+
+    name: str
+    width_left_m: float
+    width_right_m: float
+    segments: list[SegmentSpec] = field(default_factory=list)
+    description: str = ""
+
+    @property
+    def width_m(self) -> float:
+        return self.width_left_m + self.width_right_m
+
+
+# --------------------------------------------------------------------------------------------
+# TOML reading and writing
+# --------------------------------------------------------------------------------------------
+
+
+def load_spec(path: str | Path, name: str | None = None) -> TrackSpec:
+    """Read and validate a track TOML file; ``name`` overrides the file's own name."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise UserInputError(f"{path}: track file not found") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise UserInputError(f"{path}: cannot read track file ({err})") from None
+    return parse_spec(text, str(path), default_name=name or path.stem, force_name=name)
+
+
+def parse_spec(
+    text: str, label: str, default_name: str = "track", force_name: str | None = None
+) -> TrackSpec:
+    """Validate TOML text into a :class:`TrackSpec`; errors name ``label``, the line and the key."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise UserInputError(f"{label}: invalid TOML: {err}") from None
+
+    def where(key: str, seg: int | None = None) -> str:
+        line = _line_of(text, key, seg)
+        return f"{label}, line {line}" if line else label
+
+    for key in data:
+        if key not in TOP_KEYS:
+            raise UserInputError(
+                f"{where(key)}: unknown key {key!r} (allowed: {', '.join(TOP_KEYS)})"
+            )
+    name = force_name or data.get("name", default_name)
+    if not isinstance(name, str):
+        raise UserInputError(f"{where('name')}: 'name' must be a string")
+    check_name(name, f"track name in {label}")
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise UserInputError(f"{where('description')}: 'description' must be a string")
+
+    has_sides = "width_left_m" in data or "width_right_m" in data
+    if "width_m" in data and has_sides:
+        raise UserInputError(
+            f"{where('width_m')}: give width_m or both width_left_m and width_right_m, not both"
+        )
+    if has_sides:
+        if "width_left_m" not in data or "width_right_m" not in data:
+            raise UserInputError(f"{label}: give both width_left_m and width_right_m")
+        left = _number(data, "width_left_m", where("width_left_m"), low=MIN_WIDTH_M / 2)
+        right = _number(data, "width_right_m", where("width_right_m"), low=MIN_WIDTH_M / 2)
+    elif "width_m" in data:
+        width = _number(data, "width_m", where("width_m"), low=MIN_WIDTH_M)
+        left = right = width / 2.0
+    else:
+        raise UserInputError(f"{label}: missing 'width_m' (track width in metres)")
+    if left + right > MAX_WIDTH_M:
+        raise UserInputError(f"{label}: track width {left + right:g} m exceeds {MAX_WIDTH_M:g} m")
+
+    raw_segments = data.get("segment")
+    if not isinstance(raw_segments, list) or not raw_segments:
+        raise UserInputError(f"{label}: no [[segment]] tables (a track needs segments)")
+    segments = [
+        _segment(raw, i, label, lambda key, i=i: where(key, i), left, right)
+        for i, raw in enumerate(raw_segments)
+    ]
+    return TrackSpec(name, left, right, segments, description)
+
+
+def _segment(
+    raw: Any, i: int, label: str, where, left: float, right: float
+) -> SegmentSpec:
+    """Validate one ``[[segment]]`` table (``i`` is 0-based, messages count from 1)."""
+    head = f"segment {i + 1}"
+    if not isinstance(raw, dict):
+        raise UserInputError(f"{label}: {head} is not a table")
+    kind = raw.get("type")
+    if kind not in SEGMENT_TYPES:
+        raise UserInputError(
+            f"{where('type')}: {head}: 'type' must be one of {', '.join(SEGMENT_TYPES)}, "
+            f"got {kind!r}"
+        )
+    allowed = STRAIGHT_KEYS if kind == "straight" else ARC_KEYS
+    for key in raw:
+        if key not in allowed:
+            raise UserInputError(
+                f"{where(key)}: {head} ({kind}): unknown key {key!r} "
+                f"(allowed: {', '.join(allowed)})"
+            )
+    seg_name = raw.get("name", "")
+    if not isinstance(seg_name, str):
+        raise UserInputError(f"{where('name')}: {head}: 'name' must be a string")
+    if kind == "straight":
+        length = _number(raw, "length_m", f"{where('length_m')}: {head}", low=1e-3, high=1e5)
+        return SegmentSpec("straight", length_m=length, name=seg_name)
+    radius = _number(raw, "radius_m", f"{where('radius_m')}: {head}", low=1e-3, high=1e6)
+    angle = _number(raw, "angle_deg", f"{where('angle_deg')}: {head}", low=-360.0, high=360.0)
+    if angle == 0.0:
+        raise UserInputError(f"{where('angle_deg')}: {head}: 'angle_deg' must not be 0")
+    end = None
+    if "end_radius_m" in raw:
+        end = _number(raw, "end_radius_m", f"{where('end_radius_m')}: {head}", low=1e-3, high=1e6)
+    inside = left if angle > 0 else right
+    tightest = min(radius, end if end is not None else radius)
+    if tightest <= inside:
+        raise UserInputError(
+            f"{where('radius_m')}: {head}: radius {tightest:g} m is not larger than the inside "
+            f"half-width {inside:g} m (the inner edge would fold over itself)"
+        )
+    return SegmentSpec("arc", radius_m=radius, angle_deg=angle, end_radius_m=end, name=seg_name)
+
+
+def _number(
+    table: dict, key: str, where: str, low: float = -math.inf, high: float = math.inf
+) -> float:
+    """A finite number within ``[low, high]`` (bools are refused although they are ints)."""
+    if key not in table:
+        raise UserInputError(f"{where}: missing {key!r}")
+    value = table[key]
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise UserInputError(f"{where}: {key!r} must be a finite number, got {value!r}")
+    if not low <= value <= high:
+        raise UserInputError(f"{where}: {key!r} = {value!r} is outside [{low:g}, {high:g}]")
+    return float(value)
+
+
+_HEADER = re.compile(r"^\s*\[\[?\s*([A-Za-z0-9_.\-\"']+)\s*\]\]?")
+
+
+def _line_of(text: str, key: str, segment_index: int | None) -> int | None:
+    """1-based line where ``key = ...`` appears (in the given ``[[segment]]``), for messages."""
+    seg = -1
+    in_top = True
+    pattern = re.compile(rf"^\s*[\"']?{re.escape(key)}[\"']?\s*=")
+    for number, line in enumerate(text.splitlines(), start=1):
+        header = _HEADER.match(line)
+        if header:
+            in_top = False
+            if header.group(1) == "segment":
+                seg += 1
+            if segment_index is None and header.group(1) == key:
+                return number
+            continue
+        if pattern.match(line) and (
+            (segment_index is None and in_top) or (segment_index is not None and seg == segment_index)
+        ):
+            return number
+    return None
+
+
+def spec_to_toml(spec: TrackSpec) -> str:
+    """Write a spec in the TOML format above (used by ``tracks import`` and ``--save``)."""
+    lines = [f"name = {_toml_value(spec.name)}"]
+    if spec.description:
+        lines.append(f"description = {_toml_value(spec.description)}")
+    if abs(spec.width_left_m - spec.width_right_m) < 1e-9:
+        lines.append(f"width_m = {_toml_value(spec.width_m)}")
+    else:
+        lines.append(f"width_left_m = {_toml_value(spec.width_left_m)}")
+        lines.append(f"width_right_m = {_toml_value(spec.width_right_m)}")
+    for seg in spec.segments:
+        lines.append("")
+        lines.append("[[segment]]")
+        lines.extend(f"{k} = {_toml_value(v)}" for k, v in seg.to_dict().items())
+    return "\n".join(lines) + "\n"
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, str):
+        escaped = value.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
+        return f'"{escaped}"'
+    # repr keeps every digit, so a saved track re-loads bit-identical and closes the same way.
+    return repr(float(value))
+
+
+# --------------------------------------------------------------------------------------------
+# Geometry: lanes, sampling, checks
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Piece:
+    """One highway-env lane with its signed curvature (spirals are several pieces)."""
+
+    lane: Any
+    length_m: float
+    curvature_1pm: float
+    segment: int
+
+
+def build_lanes(spec: TrackSpec) -> list[_Piece]:
+    """Chain highway-env lanes from the origin, heading east; spirals become stepped arcs."""
+    from highway_env.road.lane import CircularLane, StraightLane
+
+    x, y, heading = 0.0, 0.0, 0.0
+    width = spec.width_m
+    pieces: list[_Piece] = []
+    for k, seg in enumerate(spec.segments):
+        if seg.type == "straight":
+            end = (x + seg.length_m * math.cos(heading), y + seg.length_m * math.sin(heading))
+            lane = StraightLane((x, y), end, width=width)
+            pieces.append(_Piece(lane, seg.length_m, 0.0, k))
+            x, y = end
+            continue
+        r0 = seg.radius_m
+        r1 = r0 if seg.end_radius_m is None else seg.end_radius_m
+        steps = 1 if r1 == r0 else max(4, math.ceil(seg.arc_length_m / SPIRAL_STEP_M))
+        total = math.radians(seg.angle_deg)
+        for j in range(steps):
+            radius = r0 + (r1 - r0) * (j + 0.5) / steps
+            dtheta = total / steps
+            side = 1.0 if dtheta > 0 else -1.0
+            cx = x - side * radius * math.sin(heading)
+            cy = y + side * radius * math.cos(heading)
+            start_phase = heading - side * math.pi / 2
+            # highway-env's "clockwise" is in screen coordinates (y down): it is our left turn.
+            lane = CircularLane(
+                (cx, cy), radius, start_phase, start_phase + dtheta, clockwise=side > 0,
+                width=width,
+            )
+            length = radius * abs(dtheta)
+            pieces.append(_Piece(lane, length, side / radius, k))
+            end_point = lane.position(length, 0.0)
+            x, y = float(end_point[0]), float(end_point[1])
+            heading += dtheta
+    return pieces
+
+
+def build_track(spec: TrackSpec, label: str, source: str = "") -> Track:
+    """Sample a spec into a :class:`Track`; refuse it if it does not close or overlaps itself.
+
+    Samples are placed at a uniform arc-length spacing on the exact lane geometry, and
+    curvature comes from the segments (1/R on arcs, 0 on straights), so it is exact rather than a
+    noisy finite difference. The residual closure gap (< 1 m) is spread linearly along the lap.
+    """
+    pieces = build_lanes(spec)
+    starts = np.concatenate([[0.0], np.cumsum([p.length_m for p in pieces])])
+    length = float(starts[-1])
+    last = pieces[-1]
+    end = np.asarray(last.lane.position(last.length_m, 0.0), dtype=float)
+    gap = end  # the track starts at the origin
+    closure = float(np.hypot(*gap))
+    if closure > CLOSURE_TOLERANCE_M:
+        raise UserInputError(
+            f"{label}: track does not close: its end is {closure:.2f} m from the start "
+            f"(at x={end[0]:.2f}, y={end[1]:.2f} m; tolerance {CLOSURE_TOLERANCE_M:g} m)"
+        )
+    end_heading = float(last.lane.heading_at(last.length_m))
+    turned = sum(math.radians(s.angle_deg) for s in spec.segments if s.type == "arc")
+    kink = math.degrees(math.atan2(math.sin(end_heading), math.cos(end_heading)))
+    if abs(kink) > HEADING_TOLERANCE_DEG:
+        raise UserInputError(
+            f"{label}: track does not close smoothly: it returns to the start {kink:+.2f} deg "
+            f"off the start heading (tolerance {HEADING_TOLERANCE_DEG:g} deg)"
+        )
+    if abs(abs(turned) - 2 * math.pi) > math.radians(HEADING_TOLERANCE_DEG):
+        raise UserInputError(
+            f"{label}: segments turn {math.degrees(turned):+.1f} deg in total; a simple closed "
+            "track turns +360 (counter-clockwise) or -360 (clockwise)"
+        )
+
+    n = max(int(round(length / SAMPLE_SPACING_M)), 8)
+    s = np.arange(n) * (length / n)
+    which = np.clip(np.searchsorted(starts, s, side="right") - 1, 0, len(pieces) - 1)
+    x = np.empty(n)
+    y = np.empty(n)
+    heading = np.empty(n)
+    for i in range(n):
+        piece = pieces[which[i]]
+        local = min(s[i] - starts[which[i]], piece.length_m)
+        p = piece.lane.position(local, 0.0)
+        x[i], y[i] = p[0], p[1]
+        heading[i] = piece.lane.heading_at(local)
+    x -= gap[0] * s / length
+    y -= gap[1] * s / length
+    heading = np.angle(np.exp(1j * heading))
+    curvature = np.array([p.curvature_1pm for p in pieces])[which]
+    seg_start = {}
+    for idx, p in enumerate(pieces):
+        seg_start.setdefault(p.segment, starts[idx])
+    segments = []
+    for k, seg in enumerate(spec.segments):
+        entry = seg.to_dict()
+        entry["s_start_m"] = float(seg_start[k])
+        entry["arc_length_m"] = seg.arc_length_m
+        segments.append(entry)
+    track = Track(
+        name=spec.name,
+        s_m=s,
+        x_m=x,
+        y_m=y,
+        heading_rad=heading,
+        curvature_1pm=curvature,
+        width_left_m=np.full(n, spec.width_left_m),
+        width_right_m=np.full(n, spec.width_right_m),
+        length_m=length,
+        closure_error_m=closure,
+        segments=segments,
+        source=source,
+    )
+    overlap = find_overlap(track)
+    if overlap is not None:
+        s_a, s_b, dist = overlap
+        raise UserInputError(
+            f"{label}: track overlaps itself: the asphalt at s={s_a:.0f} m and s={s_b:.0f} m is "
+            f"{dist:.1f} m apart centre to centre (a 2D track cannot cross itself)"
+        )
+    return track
+
+
+def find_overlap(
+    track: Track, margin_m: float = OVERLAP_MARGIN_M
+) -> tuple[float, float, float] | None:
+    """First pair of distant track parts whose asphalt (plus margin) overlaps, else None.
+
+    Two samples are *distant* when the way between them along the track is longer than half a
+    circle of diameter ``reach`` (a hairpin whose legs are ``reach`` apart is that long); such
+    samples must be at least ``reach`` = both half-widths + margin apart. A k-d tree keeps this
+    O(n log n): a 6 km track is checked in a few milliseconds.
+    """
+    from scipy.spatial import cKDTree
+
+    half = np.maximum(track.width_left_m, track.width_right_m)
+    reach = 2.0 * float(half.max()) + margin_m
+    points = np.column_stack([track.x_m, track.y_m])
+    pairs = cKDTree(points).query_pairs(reach, output_type="ndarray")
+    if len(pairs) == 0:
+        return None
+    i, j = pairs[:, 0], pairs[:, 1]
+    along = np.abs(track.s_m[i] - track.s_m[j])
+    along = np.minimum(along, track.length_m - along)
+    dist = np.hypot(track.x_m[i] - track.x_m[j], track.y_m[i] - track.y_m[j])
+    needed = half[i] + half[j] + margin_m
+    bad = (along > 0.5 * math.pi * reach) & (dist < needed)
+    if not bad.any():
+        return None
+    k = int(np.argmin(np.where(bad, dist, np.inf)))
+    return float(track.s_m[i[k]]), float(track.s_m[j[k]]), float(dist[k])

@@ -1,0 +1,120 @@
+"""Telemetry: the observation layout, its normalisation, and the track arrays the sensors read.
+
+The values themselves are computed in the compiled step (:func:`kernels.observe`); this module is
+the one place that names them, so agents, docs and tests agree on what index ``i`` means.
+
+Layout (``lac=False``: 29 values; ``lac=True``: 33), all float32, normalised so that typical
+values lie in about [-1, 1] (the SCR/gym_torcs conventions, in SI units):
+
+===== ================= ========================= ======== =====================================
+index name              raw quantity              unit     normalised value
+===== ================= ========================= ======== =====================================
+0     angle             car heading - reference   rad      angle / pi, in [-1, 1]
+                        line heading
+1-19  track_-90..       range finder at -90..+90  m        distance / 200, in [0, 1];
+      track_90          deg from the car's axis            -1 for all 19 when off the asphalt
+                        every 10 deg (+ = left)
+20    trackPos          (lateral - reference      m        0 on the line, +-1 at one half-width
+                        offset) / half width               (left > 0), beyond 1 on the grass
+21    speedX            body longitudinal speed   m/s      v / 83.33 (300 km/h = 1)
+22    speedY            body lateral speed        m/s      v / 83.33 (left > 0)
+23    speedZ            vertical speed            m/s      always 0 (flat tracks), kept for SCR
+24-27 wheelSpinVel_FL,  wheel spin speeds         rad/s    omega / 250 (~300 km/h = 1)
+      _FR, _RL, _RR
+28    rpm               engine speed              rpm      rpm / 10000
+29-32 lac_20..lac_80    reference line curvature  1/m      curvature * 10 (a 10 m radius = 1,
+                        20/40/60/80 m ahead                left turn > 0); only with ``lac``
+===== ================= ========================= ======== =====================================
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from formula_tourney.sim import kernels as K
+from formula_tourney.sim.reference import ReferenceLine
+from formula_tourney.sim.track import Track
+
+RANGE_FINDER_ANGLES_DEG = tuple(range(-90, 91, 10))
+"""Range finder directions relative to the car's axis, left > 0 (SCR's 19 default angles)."""
+RANGE_FINDER_RANGE_M = K.RAY_RANGE_M
+DEFAULT_LAC_DISTANCES_M = (20.0, 40.0, 60.0, 80.0)
+N_BASE = K.OBS_LAC
+"""Number of values without LAC (29)."""
+SPEED_SCALE_MPS = K.SPEED_SCALE_MPS
+WHEEL_SCALE_RADPS = K.WHEEL_SCALE_RADPS
+RPM_SCALE = K.RPM_SCALE
+LAC_SCALE_M = K.LAC_SCALE_M
+
+
+def observation_names(lac: bool, lac_distances_m: Sequence[float] = DEFAULT_LAC_DISTANCES_M
+                      ) -> list[str]:
+    """Names of the observation entries in order (see the module table)."""
+    names = ["angle"]
+    names += [f"track_{a}" for a in RANGE_FINDER_ANGLES_DEG]
+    names += ["trackPos", "speedX", "speedY", "speedZ"]
+    names += [f"wheelSpinVel_{w}" for w in ("FL", "FR", "RL", "RR")]
+    names += ["rpm"]
+    if lac:
+        names += [f"lac_{float(d):g}" for d in lac_distances_m]
+    return names
+
+
+def observation_bounds(lac: bool, n_lac: int = len(DEFAULT_LAC_DISTANCES_M)
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """``(low, high)`` of the normalised observation; unbounded where physics sets no bound."""
+    n = N_BASE + (n_lac if lac else 0)
+    low = np.full(n, -np.inf, dtype=np.float32)
+    high = np.full(n, np.inf, dtype=np.float32)
+    low[K.OBS_ANGLE], high[K.OBS_ANGLE] = -1.0, 1.0
+    low[K.OBS_TRACK:K.OBS_TRACK + K.N_RAYS] = -1.0
+    high[K.OBS_TRACK:K.OBS_TRACK + K.N_RAYS] = 1.0
+    low[K.OBS_VZ], high[K.OBS_VZ] = -1.0, 1.0
+    low[K.OBS_RPM], high[K.OBS_RPM] = 0.0, np.inf
+    return low, high
+
+
+def denormalise(obs: np.ndarray, lac: bool = False) -> dict[str, np.ndarray]:
+    """Physical values (SI units) of an observation or a batch of them, by name.
+
+    For plots and bots that prefer metres and m/s; ``track`` stays -1 where it is off track.
+    """
+    o = np.asarray(obs, dtype=float)
+    tr = o[..., K.OBS_TRACK:K.OBS_TRACK + K.N_RAYS]
+    out = {
+        "angle_rad": o[..., K.OBS_ANGLE] * np.pi,
+        "track_m": np.where(tr < 0, -1.0, tr * RANGE_FINDER_RANGE_M),
+        "trackPos": o[..., K.OBS_TRACKPOS],
+        "speedX_mps": o[..., K.OBS_VX] * SPEED_SCALE_MPS,
+        "speedY_mps": o[..., K.OBS_VY] * SPEED_SCALE_MPS,
+        "speedZ_mps": o[..., K.OBS_VZ] * SPEED_SCALE_MPS,
+        "wheelSpinVel_radps": o[..., K.OBS_WHEEL:K.OBS_WHEEL + 4] * WHEEL_SCALE_RADPS,
+        "rpm": o[..., K.OBS_RPM] * RPM_SCALE,
+    }
+    if lac:
+        out["lac_1pm"] = o[..., K.OBS_LAC:] / LAC_SCALE_M
+    return out
+
+
+def track_geometry(track: Track, reference: ReferenceLine) -> np.ndarray:
+    """Per-sample arrays the kernels read (``G_*`` columns): centreline, widths, asphalt edges
+    and the reference line's offset, heading and curvature; one contiguous block per track."""
+    n = track.n
+    g = np.zeros((n, K.N_GEOM))
+    nx, ny = -np.sin(track.heading_rad), np.cos(track.heading_rad)
+    g[:, K.G_X] = track.x_m
+    g[:, K.G_Y] = track.y_m
+    g[:, K.G_H] = track.heading_rad
+    g[:, K.G_WL] = track.width_left_m
+    g[:, K.G_WR] = track.width_right_m
+    g[:, K.G_S] = track.s_m
+    g[:, K.G_LX] = track.x_m + track.width_left_m * nx
+    g[:, K.G_LY] = track.y_m + track.width_left_m * ny
+    g[:, K.G_RX] = track.x_m - track.width_right_m * nx
+    g[:, K.G_RY] = track.y_m - track.width_right_m * ny
+    g[:, K.G_REF_OFF] = reference.offset_m
+    g[:, K.G_REF_H] = reference.heading_rad
+    g[:, K.G_REF_K] = reference.curvature_1pm
+    return np.ascontiguousarray(g)

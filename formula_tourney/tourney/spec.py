@@ -1,0 +1,488 @@
+"""The tournament file: a pydantic schema for ``tournaments/*.toml`` and errors that point at lines.
+
+A tournament declares variants (name, family, hyperparameter overrides), studies made of ordered
+parts (entrants or "promoted from part X", train/test tracks, reference-line setups with LAC on or
+off, episodes, seeds, test schedule), promotion rules, baselines to race and the model selection
+(best lap, or the paper's "general model"). Every field carries a description, so the TOML
+reference in ``docs/tourney.md``, ``--help`` and error messages come from one place.
+
+Errors are ``UserInputError`` naming ``file:line: key`` and the allowed values. ``tomllib`` keeps
+no line numbers, so :class:`TomlLocator` re-scans the text for each key inside its table.
+"""
+
+from __future__ import annotations
+
+import re
+import typing
+from pathlib import Path
+from typing import Any, Literal
+
+import tomllib
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from formula_tourney.agents.variants import VARIANTS
+from formula_tourney.errors import UserInputError
+from formula_tourney.safeio import check_name
+
+# The paper's ten variants (section "Algorithms"); agents.variants defines what each one is.
+PAPER_VARIANTS: tuple[str, ...] = tuple(VARIANTS)
+REFERENCE_TAGS: dict[str, str] = {"centre": "MOT", "recorded": "RC", "mincurv": "MC"}
+"""Short tags used in entrant names: the paper's MOT (middle of track) and RC (racing line)."""
+
+
+def default_family(variant: str) -> str:
+    """The paper's family of a registered variant (WIN* -> DDPG, PER1M -> PER), else the name's
+    leading letters."""
+    if variant in VARIANTS:
+        return str(VARIANTS[variant].family)
+    match = re.match(r"[A-Za-z]+", variant)
+    return match.group(0).upper() if match else variant
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class VariantEntry(_Strict):
+    """One competitor algorithm: a named agents variant plus hyperparameter overrides."""
+
+    base: str | None = Field(
+        None,
+        description="Name of the agents variant this entry configures (default: the table key, "
+        "e.g. WIN4).",
+    )
+    family: str | None = Field(
+        None,
+        description="Family for 'best per family' promotion (default: the base variant's family "
+        "in agents.variants: DDPG, LSTM, MS, PER).",
+    )
+    overrides: dict[str, Any] = Field(
+        default_factory=dict,
+        description="Variant hyperparameters to change (keys of agents.variants.AgentConfig).",
+    )
+
+
+class Setup(_Strict):
+    """A reference line and whether the agent sees its look-ahead curvature (LAC)."""
+
+    reference: Literal["centre", "recorded", "mincurv"] = Field(
+        "centre",
+        description="Reference line of reward and telemetry: centre (paper's MOT), recorded "
+        "(the follower bot's driven line, paper's RC) or mincurv (minimum-curvature line).",
+    )
+    lac: bool = Field(False, description="Add look-ahead curvature of the reference line to the "
+                      "observation.")
+
+
+class Baseline(_Strict):
+    """A non-learning driver raced on every track of a part, for the lap-time tables."""
+
+    bot: Literal["follower", "genetic"] = Field(
+        description="follower: the handcrafted line follower (the paper's Tita); genetic: the "
+        "follower on a line found by the genetic search (Cardamone et al. 2010)."
+    )
+    reference: Literal["centre", "recorded", "mincurv"] = Field(
+        "mincurv",
+        description="Line the follower bot drives (ignored for the genetic bot, which drives "
+        "its own line).",
+    )
+    laps: int = Field(2, ge=1, le=20, description="Laps driven; the best clean lap counts.")
+
+
+class Promotion(_Strict):
+    """Who goes from the source part to this one: ranked by lap time over seeds."""
+
+    metric: Literal["aLT", "bLT"] = Field(
+        "aLT",
+        description="Ranking: aLT = mean over seeds of each seed's best clean lap (the paper's "
+        "choice); bLT = the best clean lap of any seed.",
+    )
+    best_per_family: bool = Field(
+        True, description="Keep only the best entrant of each family (DDPG, LSTM, MS, PER)."
+    )
+    top_k: int | None = Field(
+        None, ge=1, description="Then keep the k best overall (all when omitted)."
+    )
+    min_finish_rate: float = Field(
+        0.0,
+        ge=0.0,
+        le=1.0,
+        description="Fraction of an entrant's seeds that must have a clean timed lap to be ranked.",
+    )
+
+
+class Selection(_Strict):
+    """Which checkpoint of a run is reported: the best lap, or the paper's general model."""
+
+    kind: Literal["best", "general"] = Field(
+        "best",
+        description="best: the best clean lap on the train track; general: among periodic test "
+        "checkpoints that also finish every unseen test track, the best on the train track.",
+    )
+    min_unseen_finish_rate: float = Field(
+        0.5,
+        gt=0.0,
+        le=1.0,
+        description="For 'general': fraction of the test starts on each unseen track that must "
+        "finish a lap.",
+    )
+
+
+class JobSettings(_Strict):
+    """Training settings of every job in a part; unset values fall back to [defaults], then to
+    training.config.TrainConfig's own defaults."""
+
+    seeds: int | None = Field(None, ge=1, le=1000, description="Independent runs per entrant.")
+    episodes: int | None = Field(None, ge=1, description="Training episodes per run.")
+    max_steps: int | None = Field(
+        None, ge=1, description="Steps per training episode (200 ms each)."
+    )
+    test_every_episodes: int | None = Field(
+        None, ge=1, description="Test (no exploration) after every N training episodes."
+    )
+    test_starts: int | None = Field(
+        None, ge=1, description="Start positions per test (one start is very noisy)."
+    )
+    test_max_steps: int | None = Field(None, ge=1, description="Steps per test episode.")
+    save_test_checkpoints: bool | None = Field(
+        None, description="Keep a checkpoint at every test (needed by the general model)."
+    )
+    device: Literal["auto", "cpu", "cuda"] | None = Field(None, description="Torch device.")
+    threads: int | None = Field(
+        None, ge=1, le=64, description="Torch threads per job (1: updates scale poorly beyond)."
+    )
+    env_overrides: dict[str, Any] | None = Field(
+        None, description="FormulaRacing-v0 config keys to change (e.g. slow_patience_steps)."
+    )
+
+
+class Part(JobSettings):
+    """One stage of a study: entrants x setups x seeds jobs trained on the same tracks."""
+
+    name: str = Field(description="Part name, also its results folder.")
+    study: str = Field("main", description="Study this part belongs to (e.g. study1).")
+    entrants: list[str] | Literal["all"] | None = Field(
+        None,
+        description="Variant names competing here, or \"all\" for every declared/built-in "
+        "variant. Exactly one of entrants and promoted_from.",
+    )
+    promoted_from: str | None = Field(
+        None, description="Take entrants from this earlier part, by the promotion rules."
+    )
+    promotion: Promotion = Field(
+        default_factory=Promotion, description="How promoted_from picks its entrants."
+    )
+    setups: list[Setup] = Field(
+        default_factory=lambda: [Setup()],
+        min_length=1,
+        description="Reference line / LAC combinations; each makes its own entrant "
+        "(<variant>-MOT, <variant>-RC-LAC, ...).",
+    )
+    train_tracks: list[str] = Field(min_length=1, description="Tracks trained on (first = "
+                                    "the track lap times and promotion are measured on).")
+    test_tracks: list[str] | None = Field(
+        None, description="Tracks tested on periodically (default: the train tracks)."
+    )
+    selection: Selection = Field(default_factory=Selection, description="Model selection.")
+    baselines: list[Baseline] = Field(
+        default_factory=list, description="Bots raced on every test track of this part."
+    )
+
+    @field_validator("name", "study")
+    @classmethod
+    def _safe_name(cls, value: str) -> str:
+        try:
+            return check_name(value, "name")
+        except UserInputError as err:
+            raise ValueError(str(err)) from None
+
+    @model_validator(mode="after")
+    def _one_source(self) -> Part:
+        if (self.entrants is None) == (self.promoted_from is None):
+            raise ValueError("give exactly one of 'entrants' and 'promoted_from'")
+        return self
+
+    def all_test_tracks(self) -> list[str]:
+        """Test tracks, defaulting to the train tracks."""
+        return list(self.test_tracks) if self.test_tracks else list(self.train_tracks)
+
+
+class Tournament(_Strict):
+    """A whole tournament file: variants, default settings and the ordered parts of its studies."""
+
+    name: str = Field(description="Tournament name: results go to <results>/<name>/.")
+    description: str = Field("", description="One line shown by --dry-run and the report.")
+    seed_base: int = Field(0, ge=0, description="Seed of run n is seed_base + n.")
+    variants: dict[str, VariantEntry] = Field(
+        default_factory=dict,
+        description="Competitors by name. Undeclared paper variants (WIN1 ... PER1M) are "
+        "available with their defaults.",
+    )
+    defaults: JobSettings = Field(
+        default_factory=JobSettings, description="Settings shared by all parts."
+    )
+    parts: list[Part] = Field(min_length=1, description="Parts in running order.")
+
+    @field_validator("name")
+    @classmethod
+    def _safe_name(cls, value: str) -> str:
+        try:
+            return check_name(value, "tournament name")
+        except UserInputError as err:
+            raise ValueError(str(err)) from None
+
+    @field_validator("variants")
+    @classmethod
+    def _safe_variant_names(cls, value: dict[str, VariantEntry]) -> dict[str, VariantEntry]:
+        for key in value:
+            try:
+                check_name(key, "variant name")
+            except UserInputError as err:
+                raise ValueError(str(err)) from None
+        return value
+
+    def variant(self, name: str) -> VariantEntry:
+        """The declared entry of a variant, or the default entry of a paper variant."""
+        return self.variants.get(name) or VariantEntry()
+
+    def variant_names(self) -> list[str]:
+        """Declared variants first, then the paper variants not declared."""
+        names = list(self.variants)
+        names += [v for v in PAPER_VARIANTS if v not in self.variants]
+        return names
+
+    def settings(self, part: Part) -> dict[str, Any]:
+        """Resolved job settings of a part: part value, else [defaults] value; None = unset."""
+        out: dict[str, Any] = {}
+        for key in JobSettings.model_fields:
+            value = getattr(part, key)
+            out[key] = value if value is not None else getattr(self.defaults, key)
+        return out
+
+
+# ----------------------------------------------------------------------------------- locating
+
+
+class TomlLocator:
+    """Line numbers of keys in a TOML text, for error messages.
+
+    Tracks the current table while scanning, counting ``[[array]]`` headers so that the second
+    ``[[parts]]`` is path ``("parts", 1)``. Values spanning lines (inline tables, arrays) map all
+    their nested keys to the line of the key that opens them.
+    """
+
+    _HEADER = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?\s*(#.*)?$")
+    _KEY = re.compile(r"^\s*([A-Za-z0-9_\-\"'. ]+?)\s*=")
+
+    def __init__(self, text: str) -> None:
+        self.lines: dict[tuple[Any, ...], int] = {}
+        array_counts: dict[tuple[Any, ...], int] = {}
+        table: tuple[Any, ...] = ()
+        for number, line in enumerate(text.splitlines(), start=1):
+            header = self._HEADER.match(line)
+            if header and not line.lstrip().startswith("#"):
+                names = tuple(_split_key(header.group(2)))
+                parent = self._resolve(names[:-1], array_counts)
+                if header.group(1) == "[[":
+                    base = parent + (names[-1],)
+                    index = array_counts.get(base, -1) + 1
+                    array_counts[base] = index
+                    table = base + (index,)
+                    self.lines.setdefault(base, number)
+                else:
+                    table = parent + (names[-1],)
+                self.lines[table] = number
+                continue
+            key = self._KEY.match(line)
+            if key and not line.lstrip().startswith("#"):
+                path = table + tuple(_split_key(key.group(1)))
+                self.lines.setdefault(path, number)
+
+    @staticmethod
+    def _resolve(names: tuple[str, ...], array_counts: dict[tuple[Any, ...], int]) -> tuple:
+        """Insert the current index after every array-of-tables name in a header path."""
+        out: tuple[Any, ...] = ()
+        for name in names:
+            out = out + (name,)
+            if out in array_counts:
+                out = out + (array_counts[out],)
+        return out
+
+    def line_of(self, loc: tuple[Any, ...]) -> int | None:
+        """Line of the longest known prefix of ``loc`` (the key itself, else its table)."""
+        for end in range(len(loc), 0, -1):
+            line = self.lines.get(tuple(loc[:end]))
+            if line is not None:
+                return line
+        return None
+
+
+def _split_key(text: str) -> list[str]:
+    return [part.strip().strip("\"'") for part in text.split(".")]
+
+
+def _model_at(loc: tuple[Any, ...]) -> type[BaseModel] | None:
+    """The pydantic model whose fields live at ``loc`` (to list allowed keys)."""
+    model: type[BaseModel] | None = Tournament
+    for item in loc:
+        if model is None:
+            return None
+        if isinstance(item, int):
+            continue
+        field = model.model_fields.get(str(item))
+        if field is None:
+            if model is Tournament:
+                return None
+            return None
+        model = _inner_model(field.annotation)
+        if model is None and str(item) == "variants":
+            model = VariantEntry
+    return model
+
+
+def _inner_model(annotation: Any) -> type[BaseModel] | None:
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    for arg in typing.get_args(annotation):
+        found = _inner_model(arg)
+        if found is not None:
+            return found
+    return None
+
+
+def _key_text(loc: tuple[Any, ...]) -> str:
+    out = ""
+    for item in loc:
+        out += f"[{item}]" if isinstance(item, int) else (f".{item}" if out else str(item))
+    return out
+
+
+def describe_errors(err: ValidationError, path: Path, text: str) -> str:
+    """Turn pydantic errors into ``file:line: key: problem (allowed ...)`` lines."""
+    locator = TomlLocator(text)
+    out = []
+    for item in err.errors():
+        loc = tuple(item["loc"])
+        # Union members appear in the loc (e.g. 'list[str]', 'literal[...]'); drop them.
+        loc = tuple(x for x in loc if isinstance(x, int) or not _looks_like_type(str(x)))
+        line = locator.line_of(loc)
+        where = f"{path}:{line}" if line else str(path)
+        msg = item["msg"]
+        if item["type"] == "extra_forbidden":
+            model = _model_at(loc[:-1]) if len(loc) > 1 else Tournament
+            if loc and loc[0] == "variants" and len(loc) == 3:
+                model = VariantEntry
+            if loc and loc[0] == "parts" and len(loc) == 3:
+                model = Part
+            allowed = ", ".join(model.model_fields) if model else "?"
+            msg = f"unknown key; allowed keys: {allowed}"
+        elif item["type"] == "missing":
+            msg = "required key is missing"
+        else:
+            field = _field_at(loc)
+            if field is not None and field.description and "literal" not in item["type"]:
+                msg = f"{msg} ({field.description})"
+        out.append(f"{where}: {_key_text(loc)}: {msg}")
+    return "\n".join(out)
+
+
+def _looks_like_type(text: str) -> bool:
+    return text.startswith(("list[", "literal[", "dict[", "str", "int", "bool", "float",
+                            "function-", "none"))
+
+
+def _field_at(loc: tuple[Any, ...]) -> Any:
+    names = [x for x in loc if not isinstance(x, int)]
+    if not names:
+        return None
+    model = _model_at(tuple(loc[:-1])) if len(loc) > 1 else Tournament
+    if model is None:
+        return None
+    return model.model_fields.get(str(names[-1]))
+
+
+# ------------------------------------------------------------------------------------ loading
+
+
+def load_spec(path: str | Path) -> tuple[Tournament, str]:
+    """Read and validate a tournament file; return the spec and its text (for line lookups).
+
+    Only structure is checked here; names of variants, tracks and parts are checked against the
+    rest of the tool by :func:`check_references` and by ``tourney.plan``.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise UserInputError(f"{path}: tournament file not found") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise UserInputError(f"{path}: cannot read tournament file ({err})") from None
+    return parse_spec(text, path), text
+
+
+def parse_spec(text: str, path: Path) -> Tournament:
+    """Validate tournament TOML text; ``path`` only names the file in error messages."""
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise UserInputError(f"{path}: not valid TOML: {err}") from None
+    try:
+        spec = Tournament.model_validate(raw)
+    except ValidationError as err:
+        raise UserInputError(describe_errors(err, path, text)) from None
+    check_references(spec, path, text)
+    return spec
+
+
+def error_at(path: Path, text: str, loc: tuple[Any, ...], message: str) -> UserInputError:
+    """A UserInputError ``file:line: key: message`` for a key path in the tournament file."""
+    line = TomlLocator(text).line_of(loc)
+    where = f"{path}:{line}" if line else str(path)
+    return UserInputError(f"{where}: {_key_text(loc)}: {message}")
+
+
+def check_references(spec: Tournament, path: Path, text: str) -> None:
+    """Cross-field rules: unique part names, promotion only from earlier parts, known variants."""
+    names = spec.variant_names()
+    seen: dict[str, int] = {}
+    for index, part in enumerate(spec.parts):
+        if part.name in seen:
+            raise error_at(path, text, ("parts", index, "name"),
+                           f"part name {part.name!r} is already used by parts[{seen[part.name]}]")
+        if part.promoted_from is not None and part.promoted_from not in seen:
+            earlier = ", ".join(seen) or "(none: this is the first part)"
+            raise error_at(path, text, ("parts", index, "promoted_from"),
+                           f"unknown part {part.promoted_from!r}; allowed values (earlier "
+                           f"parts): {earlier}")
+        seen[part.name] = index
+        if isinstance(part.entrants, list):
+            if not part.entrants:
+                raise error_at(path, text, ("parts", index, "entrants"),
+                               "empty list; name at least one variant or use \"all\"")
+            for name in part.entrants:
+                if name not in names:
+                    raise error_at(path, text, ("parts", index, "entrants"),
+                                   f"unknown variant {name!r}; allowed values: "
+                                   f"{', '.join(names)}, \"all\"")
+        setups = [(s.reference, s.lac) for s in part.setups]
+        if len(set(setups)) != len(setups):
+            raise error_at(path, text, ("parts", index, "setups"),
+                           "the same reference/lac setup is listed twice")
+        if part.selection.kind == "general" and not set(part.all_test_tracks()) - set(
+            part.train_tracks
+        ):
+            raise error_at(path, text, ("parts", index, "selection", "kind"),
+                           "'general' needs test_tracks that are not train tracks")
+    for name, entry in spec.variants.items():
+        if entry.base is not None and entry.base not in PAPER_VARIANTS and entry.base not in (
+            spec.variants
+        ):
+            raise error_at(path, text, ("variants", name, "base"),
+                           f"unknown base variant {entry.base!r}; allowed values: "
+                           f"{', '.join(PAPER_VARIANTS)}")
+
+
+def entrant_name(variant: str, setup: Setup) -> str:
+    """<variant>-<MOT|RC|MC>[-LAC]: unique within a part, safe as a folder name."""
+    name = f"{variant}-{REFERENCE_TAGS[setup.reference]}" + ("-LAC" if setup.lac else "")
+    return check_name(name, "entrant name")

@@ -1,0 +1,221 @@
+"""Test episodes: the greedy actor (epsilon = 0) from several starts, timed lap by lap.
+
+A single test from one start is very noisy (an actor that lapped cleanly from 4 of 5 starts spun
+from the fifth, DESIGN.md), so every test drives from ``starts`` positions spread over the lap and
+keeps every lap: its time, its damage and whether it was clean. The best clean lap's per-step trace
+is kept for plots.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from formula_tourney.agents.ddpg import DDPGAgent
+from formula_tourney.agents.replay import ObservationWindow
+
+TRACE_COLUMNS = (
+    "time_s", "distance_m", "s_m", "lateral_m", "x_m", "y_m", "speed_kmh", "steer", "throttle",
+    "brake",
+)  # fmt: skip
+
+
+@dataclass
+class DriveResult:
+    """One test drive from one start."""
+
+    track: str
+    start_s_m: float
+    lap_times_s: list[float]
+    lap_damage: list[float]
+    damage: float
+    reward: float
+    steps: int
+    termination: str
+    best_trace: pd.DataFrame | None = field(default=None, repr=False)
+
+    @property
+    def laps(self) -> int:
+        return len(self.lap_times_s)
+
+    @property
+    def finished(self) -> bool:
+        """At least one full timed lap."""
+        return self.laps >= 1
+
+    @property
+    def best_lap_s(self) -> float:
+        """Best lap with zero lap damage; nan if none."""
+        clean = [t for t, d in zip(self.lap_times_s, self.lap_damage, strict=True) if d <= 0.0]
+        return min(clean) if clean else math.nan
+
+
+def start_positions(length_m: float, starts: int, before_line_m: float = 50.0) -> list[float]:
+    """``starts`` arc lengths evenly spaced over the lap, the first 50 m before the start line
+    (the env's default start), so one of them is always the canonical start."""
+    return [float((length_m - before_line_m - k * length_m / starts) % length_m)
+            for k in range(starts)]  # fmt: skip
+
+
+def _xy(info: dict[str, Any], track: Any) -> tuple[float, float]:
+    if "x_m" in info and "y_m" in info:
+        return float(info["x_m"]), float(info["y_m"])
+    x, y, _ = track.pose_at(float(info.get("s_m", 0.0)), float(info.get("lateral_m", 0.0)))
+    return float(x), float(y)
+
+
+def run_test_episode(
+    agent: DDPGAgent,
+    env: Any,
+    track_name: str,
+    start_s_m: float,
+    seed: int,
+    record_trace: bool = True,
+) -> DriveResult:
+    """Drive one greedy episode from ``start_s_m`` (at rest) until the env ends it."""
+    track = getattr(env.unwrapped, "track", None)
+    period_s = float(getattr(env.unwrapped, "config", {}).get("control_period_s", 0.2))
+    obs, info = env.reset(seed=seed, options={"start_s_m": float(start_s_m)})
+    window = ObservationWindow(agent.cfg.window)
+    stack = window.reset(obs)
+    rows: list[tuple[float, ...]] = []
+    total_reward = 0.0
+    steps = 0
+    while True:
+        action = agent.act(stack)
+        obs, reward, terminated, truncated, info = env.step(action)
+        total_reward += float(reward)
+        steps += 1
+        if record_trace:
+            x, y = _xy(info, track) if track is not None else (math.nan, math.nan)
+            rows.append((
+                steps * period_s, float(info.get("distance_m", math.nan)),
+                float(info.get("s_m", math.nan)), float(info.get("lateral_m", math.nan)), x, y,
+                float(info.get("speed_mps", math.nan)) * 3.6, float(action[0]), float(action[1]),
+                float(action[2]), float(info.get("laps", 0)),
+            ))  # fmt: skip
+        if terminated or truncated:
+            break
+        stack = window.push(obs)
+    lap_times = [float(t) for t in info.get("lap_times_s", [])]
+    lap_damage = [float(d) for d in info.get("lap_damage", [0.0] * len(lap_times))]
+    ep = DriveResult(
+        track=track_name,
+        start_s_m=float(start_s_m),
+        lap_times_s=lap_times,
+        lap_damage=lap_damage,
+        damage=float(info.get("damage", 0.0)),
+        reward=total_reward,
+        steps=steps,
+        termination=str(info.get("termination") or ("max_steps" if truncated else "")),
+    )
+    if record_trace and math.isfinite(ep.best_lap_s):
+        ep.best_trace = _lap_trace(rows, lap_times, lap_damage, ep.best_lap_s)
+    return ep
+
+
+def _lap_trace(
+    rows: list[tuple[float, ...]],
+    lap_times: list[float],
+    lap_damage: list[float],
+    best: float,
+) -> pd.DataFrame:
+    """Steps of the best clean lap, time measured from its start.
+
+    Lap k ends at the first step whose lap count reaches k; it began ``lap_time`` earlier (the env
+    interpolates crossings inside a physics step, so the window is exact to one control step).
+    """
+    arr = np.asarray(rows, dtype=float)
+    k = next(i for i, (t, d) in enumerate(zip(lap_times, lap_damage, strict=True))
+             if d <= 0.0 and t == best) + 1  # fmt: skip
+    end_step = int(np.argmax(arr[:, -1] >= k))
+    t_end = arr[end_step, 0]
+    keep = (arr[:, 0] >= t_end - best) & (arr[:, 0] <= t_end)
+    frame = pd.DataFrame(arr[keep, :-1], columns=list(TRACE_COLUMNS))
+    frame["time_s"] -= t_end - best
+    return frame
+
+
+def tests_row(ep: DriveResult, episode: int, env_steps: int, checkpoint: str) -> dict[str, Any]:
+    """The tests.parquet row of one test drive (columns from docs/CONTRACTS.md)."""
+    return {
+        "episode": episode, "env_steps": env_steps, "track": ep.track,
+        "start_s_m": ep.start_s_m, "finished": ep.finished, "best_lap_s": ep.best_lap_s,
+        "laps": ep.laps, "damage": ep.damage, "reward": ep.reward, "steps": ep.steps,
+        "termination": ep.termination, "checkpoint": checkpoint,
+    }  # fmt: skip
+
+
+def laps_rows(ep: DriveResult, episode: int) -> list[dict[str, Any]]:
+    """The laps.parquet rows of one test drive."""
+    return [
+        {"episode": episode, "track": ep.track, "start_s_m": ep.start_s_m, "lap_index": i,
+         "lap_time_s": t, "lap_damage": d, "clean": bool(d <= 0.0)}
+        for i, (t, d) in enumerate(zip(ep.lap_times_s, ep.lap_damage, strict=True))
+    ]  # fmt: skip
+
+
+def evaluate_checkpoint(
+    checkpoint: str,
+    track: str,
+    starts: int = 3,
+    max_steps: int = 1500,
+    device: str = "cpu",
+    reference: str | None = None,
+) -> dict[str, Any]:
+    """Drive a saved agent greedily on ``track`` from ``starts`` starts; the CLI's ``eval``.
+
+    The env is configured as in training (reference line, LAC, env overrides from the
+    checkpoint's train config), since the observation depends on them.
+    """
+    import time
+
+    from formula_tourney.agents.ddpg import load_checkpoint
+    from formula_tourney.training.config import TrainConfig
+    from formula_tourney.training.loop import load_tracks, make_env, reference_for
+
+    t0 = time.perf_counter()
+    agent, extra = load_checkpoint(checkpoint, device=device)
+    train_cfg = TrainConfig.parse(extra.get("train_config", {}), f"checkpoint {checkpoint}")
+    ref_kind = reference or train_cfg.reference
+    tr = load_tracks([track])[track]
+    env = make_env(
+        tr, reference_for(tr, ref_kind, train_cfg.env_overrides.get("car")), train_cfg.lac,
+        max_steps, False, train_cfg.env_overrides,
+    )  # fmt: skip
+    obs_dim = int(np.prod(env.observation_space.shape))
+    if obs_dim != agent.obs_dim:
+        from formula_tourney.errors import UserInputError
+
+        raise UserInputError(
+            f"checkpoint {checkpoint} expects {agent.obs_dim} observations, the env gives {obs_dim}"
+        )
+    drives = [
+        run_test_episode(agent, env, track, s0, seed=k)
+        for k, s0 in enumerate(start_positions(tr.length_m, starts))
+    ]
+    env.close()
+    best = min((d.best_lap_s for d in drives if math.isfinite(d.best_lap_s)), default=math.nan)
+    return {
+        "checkpoint": str(checkpoint),
+        "track": track,
+        "reference": ref_kind,
+        "best_lap_s": None if math.isnan(best) else best,
+        "laps": sum(d.laps for d in drives),
+        "damage": sum(d.damage for d in drives),
+        "finished": any(d.finished for d in drives),
+        "episodes": len(drives),
+        "env_steps": sum(d.steps for d in drives),
+        "updates": agent.updates,
+        "seconds": time.perf_counter() - t0,
+        "drives": [
+            {"start_s_m": d.start_s_m, "lap_times_s": d.lap_times_s, "lap_damage": d.lap_damage,
+             "termination": d.termination, "best_lap_s": None if math.isnan(d.best_lap_s)
+             else d.best_lap_s}
+            for d in drives
+        ],
+    }  # fmt: skip

@@ -1,0 +1,189 @@
+"""DDPG agent: the adopted target, PER priorities, exploration rule, determinism, learning."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+import torch
+
+from formula_tourney.agents.ddpg import DDPGAgent, load_checkpoint, save_checkpoint
+from formula_tourney.agents.noise import BrakeExplorationNoise, linear_epsilon
+from formula_tourney.agents.replay import ReplayBuffer, make_buffer
+from formula_tourney.agents.variants import VARIANTS, get_variant
+from formula_tourney.errors import UserInputError
+
+torch.set_num_threads(1)
+D = 6
+SMALL = {"hidden": (32, 24), "batch_size": 16, "lstm_state_units": 16, "lstm_hidden": 8}
+
+
+def _buffer_for(cfg, n: int = 200, seed: int = 0, **kw) -> ReplayBuffer:
+    buf = make_buffer(
+        500, D, 3, prioritized=cfg.prioritized, gamma=cfg.gamma, n_step=cfg.n_step,
+        window=cfg.window, bootstrap_on_truncation=cfg.adopted_target, seed=seed, **kw,
+    )  # fmt: skip
+    rng = np.random.default_rng(seed)
+    for t in range(n):
+        buf.add(
+            rng.normal(size=D), rng.random(3), rng.normal(), rng.normal(size=D),
+            terminated=t % 50 == 24, truncated=t % 50 == 49,
+        )  # fmt: skip
+    return buf
+
+
+def test_registry_has_the_papers_ten_variants() -> None:
+    assert list(VARIANTS) == [
+        "WIN1", "WIN4", "WIN8", "LSTM4", "LSTM8", "MS2", "MS3", "MS4", "PER40k", "PER1M",
+    ]  # fmt: skip
+    assert {v.family for v in VARIANTS.values()} == {"DDPG", "LSTM", "MS", "PER"}
+    assert get_variant("PER40k").buffer_size == 40_000 and get_variant("MS3").n_step == 3
+    assert get_variant("LSTM8").lstm_critic and get_variant("LSTM8").window == 8
+    with pytest.raises(UserInputError, match="known: WIN1"):
+        get_variant("WIN2")
+    with pytest.raises(UserInputError, match="gamma"):
+        get_variant("WIN1", {"gamma": 2.0})
+    with pytest.raises(UserInputError, match="bogus"):
+        get_variant("WIN1", {"bogus": 1})
+
+
+def test_adopted_target_bootstraps_on_truncation_not_termination() -> None:
+    cfg = get_variant("WIN1", SMALL)
+    agent = DDPGAgent(cfg, D, seed=0)
+    buf = ReplayBuffer(10, D, 3, gamma=0.9)
+    s = [np.full(D, v, np.float32) for v in (0.1, 0.2, 0.3, 0.4)]
+    buf.add(s[0], np.zeros(3), 1.0, s[1], terminated=True, truncated=False)
+    buf.add(s[2], np.zeros(3), 2.0, s[3], terminated=False, truncated=True)
+    b = buf.gather(np.array([0, 1]), np.ones(2))
+    t = {k: torch.from_numpy(v) for k, v in b._asdict().items()}
+    y = agent.target(t["rewards"], t["discounts"], t["next_observations"], t["next_action_windows"])
+    with torch.no_grad():
+        s3 = torch.from_numpy(s[3])[None, None]
+        q_boot = agent.critic_target(s3, agent.actor_target(s3)).item()
+    assert q_boot != 0.0
+    assert y[0].item() == pytest.approx(1.0, abs=1e-7)  # y = r on a premature end
+    assert y[1].item() == pytest.approx(2.0 + 0.9 * q_boot, rel=1e-6)  # full target at max-steps
+
+
+def test_per_update_writes_the_papers_priority() -> None:
+    cfg = get_variant("PER40k", {**SMALL, "per_lambda3": 0.3, "per_eps": 1e-2, "per_alpha": 0.5})
+    agent = DDPGAgent(cfg, D, seed=1)
+    buf = _buffer_for(cfg, alpha=cfg.per_alpha, lambda3=cfg.per_lambda3, eps=cfg.per_eps)
+    batch = buf.sample(16)
+    before = copy.deepcopy(agent)
+    agent.update(batch, buf)
+    # recompute delta and grad_a Q(s_i, a_i) with the critic as it was before the step
+    obs = torch.from_numpy(batch.observations)
+    a = torch.from_numpy(batch.actions).requires_grad_(True)
+    y = before.target(
+        torch.from_numpy(batch.rewards), torch.from_numpy(batch.discounts),
+        torch.from_numpy(batch.next_observations), torch.from_numpy(batch.next_action_windows),
+    )  # fmt: skip
+    q = before.critic(obs, a)
+    (g,) = torch.autograd.grad(q.sum(), a)
+    delta = (y - q).detach().numpy()
+    p = delta**2 + 0.3 * (g.numpy() ** 2).sum(1) + 1e-2
+    np.testing.assert_allclose(agent.last_priorities, p, rtol=1e-4)
+    last_write = {i: k for k, i in enumerate(batch.indices)}  # duplicates: last write wins
+    idx = np.array(list(last_write))
+    np.testing.assert_allclose(
+        buf.tree.values(idx), p[list(last_write.values())] ** 0.5, rtol=1e-4
+    )
+
+
+def test_brake_exploration_never_presses_both_pedals_beyond_the_rule() -> None:
+    rng = np.random.default_rng(0)
+    noise = BrakeExplorationNoise(np.random.default_rng(1), noise_prob=0.1, brake_prob=0.2)
+    fired = 0
+    n = 4000
+    for _ in range(n):
+        a = np.array([rng.uniform(-1, 1), rng.uniform(0, 1), rng.uniform(0, 0.2)], np.float32)
+        eps = float(rng.uniform(0.05, 1.0))
+        out, ev = noise(a, eps)
+        assert np.all(out >= [-1, 0, 0]) and np.all(out <= 1)
+        if ev.brake_explored:
+            fired += 1
+            # throttle only goes down, by exactly the factor (1 - epsilon), and gets no noise
+            assert out[1] == pytest.approx(a[1] * (1 - eps), abs=1e-6)
+            assert not ev.mask[1]
+        elif not ev.mask[1]:
+            assert out[1] == pytest.approx(a[1], abs=1e-7)
+    # the rule fires with its probability (binomial, 5 sigma)
+    assert abs(fired - 0.2 * n) < 5 * np.sqrt(n * 0.2 * 0.8)
+    # at epsilon = 0 the action is untouched; at epsilon = 1 brake exploration releases throttle
+    a = np.array([0.3, 0.9, 0.0], np.float32)
+    assert np.array_equal(noise(a, 0.0)[0], a)
+    full = BrakeExplorationNoise(np.random.default_rng(2), brake_prob=1.0)
+    out, ev = full(a, 1.0)
+    assert ev.brake_explored and out[1] == 0.0
+
+
+def test_epsilon_anneals_linearly_to_zero() -> None:
+    assert [linear_epsilon(s, 100) for s in (0, 25, 100, 500)] == [1.0, 0.75, 0.0, 0.0]
+
+
+@pytest.mark.parametrize("name", ["WIN4", "LSTM4", "MS3", "PER1M"])
+def test_same_seed_same_weights_after_updates(name: str) -> None:
+    cfg = get_variant(name, {**SMALL, "buffer_size": 1000})
+
+    def run(seed: int) -> DDPGAgent:
+        agent = DDPGAgent(cfg, D, seed=seed)
+        buf = _buffer_for(cfg, seed=seed)
+        for _ in range(10):
+            agent.update(buf.sample(cfg.batch_size), buf)
+        return agent
+
+    a, b, c = run(7), run(7), run(8)
+    for key in ("actor", "critic", "critic_target"):
+        sa, sb, sc = (getattr(x, key).state_dict() for x in (a, b, c))
+        assert all(torch.equal(sa[k], sb[k]) for k in sa)
+        assert not all(torch.equal(sa[k], sc[k]) for k in sa)
+
+
+def test_actor_ranges_and_lstm_critic_reads_past_actions() -> None:
+    cfg = get_variant("LSTM4", SMALL)
+    agent = DDPGAgent(cfg, D, seed=0)
+    obs = torch.randn(64, 4, D) * 10
+    act = agent.actor(obs)
+    assert act.shape == (64, 3)
+    assert act[:, 0].abs().max() <= 1 and act[:, 1:].min() >= 0 and act[:, 1:].max() <= 1
+    past = torch.rand(64, 3, 3)
+    q1 = agent.critic(obs, act, past)
+    q2 = agent.critic(obs, act, torch.rand(64, 3, 3))
+    assert not torch.allclose(q1, q2)
+    # untrained actor leaves the brake nearly released (sigmoid(-3) ~ 0.05)
+    assert float(act[:, 2].mean().detach()) < 0.15
+
+
+def test_checkpoint_round_trip_weights_only(tmp_path) -> None:
+    cfg = get_variant("WIN4", SMALL)
+    agent = DDPGAgent(cfg, D, seed=0)
+    path = save_checkpoint(agent, tmp_path / "a.pt", extra={"episode": 3})
+    loaded, extra = load_checkpoint(path)
+    assert extra == {"episode": 3} and loaded.cfg == cfg
+    x = np.random.default_rng(0).normal(size=(4, D)).astype(np.float32)
+    np.testing.assert_array_equal(agent.act(x), loaded.act(x))
+    (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(UserInputError, match="bad.pt"):
+        load_checkpoint(tmp_path / "bad.pt")
+
+
+def test_ddpg_learns_a_contextual_bandit() -> None:
+    """One-step episodes (y = r): the actor must steer to +-0.5 by the sign of s_0."""
+    cfg = get_variant(
+        "WIN1", {"hidden": (64, 64), "batch_size": 64, "actor_lr": 1e-3, "critic_lr": 3e-3}
+    )
+    agent = DDPGAgent(cfg, 2, seed=0)
+    buf = ReplayBuffer(5000, 2, 3, seed=0)
+    rng = np.random.default_rng(0)
+    for _ in range(2000):
+        s = rng.uniform(-1, 1, 2).astype(np.float32)
+        a = np.array([rng.uniform(-1, 1), rng.random(), rng.random()], np.float32)
+        r = -((a[0] - 0.5 * np.sign(s[0])) ** 2)
+        buf.add(s, a, r, s, terminated=True, truncated=False)
+    for _ in range(1500):
+        agent.update(buf.sample(64))
+    test = np.array([[0.8, 0.0], [-0.8, 0.0], [0.3, 0.5], [-0.3, -0.5]], np.float32)
+    steer = [agent.act(t[None])[0] for t in test]
+    np.testing.assert_allclose(steer, [0.5, -0.5, 0.5, -0.5], atol=0.15)

@@ -1,0 +1,244 @@
+"""``formula-tourney report`` end to end: JSON, LaTeX (compiled where pdflatex exists), HTML and
+figures, and ``replay``'s lap recorder and GIF writer on a stand-in env."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from PIL import Image
+from report_fixtures import build_tournament
+
+from formula_tourney.cli import main
+from formula_tourney.errors import UserInputError
+from formula_tourney.report import plots
+from formula_tourney.report.build import build_report
+from formula_tourney.report.replay import record_lap, write_gif
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    base = tmp_path_factory.mktemp("results")
+    build_tournament(base)
+    return base
+
+
+def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    try:
+        main(argv)
+        code = 0
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_report_json_has_table1_with_cis(results: Path, capsys) -> None:
+    code, out, _ = _run(["report", "--results", str(results), "--part", "part1", "--json"],
+                        capsys)
+    assert code == 0
+    doc = json.loads(out)
+    assert doc["tournament"] == "fixture-cup"
+    rows = {r["label"]: r for r in doc["tables"]["table1"]["rows"]}
+    assert rows["win1"]["cells"]["part1: oval MOT | bLT"] == pytest.approx(27.1)
+    assert rows["win1"]["text"]["part1: oval MOT | 95% CI"] == "[27.10, 27.40]"
+    assert rows["ms3"]["cells"]["part1: oval MOT | bLT"] is None
+    assert rows["ms3"]["text"]["part1: oval MOT | aLT"] == "DNF"
+    assert doc["files"] == {} and doc["figures"] == {}
+
+
+def test_report_terminal_lists_problems_and_renders(results: Path, capsys) -> None:
+    code, out, _ = _run(["report", "--results", str(results)], capsys)
+    assert code == 0
+    assert "part2/win4-rc/seed-2: failed" in out
+    assert "Table 1" in out and "27.23" in out and "DNF" in out
+
+
+def test_report_bad_input_exits_2(results: Path, capsys) -> None:
+    code, _, err = _run(["report", "--results", str(results), "--tournament", "nope"], capsys)
+    assert code == 2 and "no tournament 'nope'" in err
+    code, _, err = _run(["report", "--results", str(results), "--latex", "--html"], capsys)
+    assert code == 2 and "choose one output format" in err
+
+
+def test_report_empty_part_does_not_crash(results: Path, capsys) -> None:
+    code, out, _ = _run(["report", "--results", str(results), "--part", "part4", "--json"],
+                        capsys)
+    assert code == 0
+    doc = json.loads(out)
+    assert doc["tables"]["table1"]["rows"] == []
+    assert any("part4" in p for p in doc["problems"])
+
+
+def test_latex_is_standalone_and_compiles(results: Path, tmp_path: Path) -> None:
+    rep = build_report("fixture-cup", results, out_dir=tmp_path, fmt="latex", figures=False)
+    tex = rep.files["tables.tex"].read_text()
+    assert tex.startswith("\\documentclass")
+    assert tex.count("\\begin{table}") == tex.count("\\end{table}") == 7  # 4 parts + 3
+    assert "\\textbf{27.07}" in tex and "\\usepackage{booktabs}" in tex
+    assert (tmp_path / "table1.tex").is_file() and "\\documentclass" not in (
+        tmp_path / "table1.tex").read_text()
+    if shutil.which("pdflatex") is None:
+        pytest.skip("no pdflatex here: structure checked only")
+    proc = subprocess.run(
+        ["pdflatex", "-interaction=nonstopmode", "-halt-on-error", "tables.tex"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=60,
+    )
+    assert proc.returncode == 0, proc.stdout[-2000:]
+    assert (tmp_path / "tables.pdf").stat().st_size > 10_000
+
+
+def test_html_and_figures_for_a_generalisation_part(results: Path, tmp_path: Path) -> None:
+    rep = build_report("fixture-cup", results, part="part3", out_dir=tmp_path, fmt="html")
+    names = set(rep.figures)
+    assert {"learning-part3", "generalisation-per1m-rc", "trace-part3-technical-rc-lac",
+            "line-part3-technical-rc-lac", "delta-part3-technical-rc-lac"} <= names
+    for paths in rep.figures.values():
+        png, pdf = sorted(paths, key=lambda p: p.suffix, reverse=True)
+        assert png.suffix == ".png" and pdf.suffix == ".pdf"
+        with Image.open(png) as img:
+            assert img.width > 300 and img.height > 200
+            # not a blank canvas: many distinct colours
+            assert len(img.convert("RGB").getcolors(1 << 20)) > 50
+        assert pdf.read_bytes()[:4] == b"%PDF"
+    page = rep.files["report.html"].read_text()
+    assert page.count("data:image/png;base64,") == len(rep.figures)
+    assert "part3/per1m-mot/seed-1: running" in page
+    assert "<td class='best'>65.27</td>" in page
+    assert not any("baseline trace" in p for p in rep.data.problems)
+
+
+def test_figures_compare_with_the_followers_stored_lap(results: Path) -> None:
+    from formula_tourney.report.load import load_tournament
+
+    data = load_tournament(results / "fixture-cup", part="part2")
+    label, trace = plots.bot_trace(data, "part2", "technical")
+    assert label == "Follower (Tita)"
+    # the faster of its two timed laps (68.11 s, the second is 69.11 s), rebased to 0
+    assert trace["time_s"].iloc[0] == 0.0
+    assert trace["time_s"].iloc[-1] == pytest.approx(68.11)
+    assert plots.bot_trace(data, "part2", "flowing") is None
+
+
+def test_ablation_pairs_and_plot(results: Path, tmp_path: Path) -> None:
+    from formula_tourney.report.load import load_tournament
+
+    data = load_tournament(results / "fixture-cup")
+    pairs = plots.ablation_pairs(data)
+    assert pairs == [{"part": "ablation", "flag": "adopted_target", "off": "win1-noat",
+                      "on": "win1"}]
+    ep = data.episodes.loc[data.episodes["part"] == "ablation"]
+    paths = plots.plot_ablation(ep, {"win1-noat": "off", "win1": "on"}, "AT", tmp_path / "at")
+    assert [p.name for p in paths] == ["at.png", "at.pdf"]
+    assert all(p.stat().st_size > 5_000 for p in paths)
+
+
+def test_one_lap_picks_the_fastest_complete_lap() -> None:
+    trace = pd.DataFrame({
+        "time_s": [0.0, 1.0, 2.0, 4.0, 6.0, 7.0, 8.0, 9.0, 9.5],
+        "distance_m": [0.0, 10.0, 20.0, 40.0, 60.0, 70.0, 80.0, 100.0, 105.0],
+        "speed_kmh": 36.0, "x_m": 0.0, "y_m": 0.0,
+        "lap": [0, 0, 1, 1, 1, 2, 2, 2, 3],  # lap 1 takes 4 s, lap 2 takes 2 s, 3 unfinished
+    })
+    lap = plots.one_lap(trace)
+    assert lap["time_s"].tolist() == [0.0, 1.0, 2.0]
+    assert lap["distance_m"].tolist() == [0.0, 10.0, 30.0]
+    no_time = plots.one_lap(trace.drop(columns=["time_s", "lap"]))
+    assert no_time["time_s"].iloc[-1] == pytest.approx(105.0 / 10.0)  # 36 km/h = 10 m/s
+
+
+def test_delta_time_by_hand() -> None:
+    d = np.linspace(0.0, 100.0, 11)
+    a = pd.DataFrame({"distance_m": d, "time_s": d / 10.0})  # 10 m/s
+    b = pd.DataFrame({"distance_m": d, "time_s": d / 20.0})  # 20 m/s
+    grid, delta = plots.delta_time(a, b, points=5)
+    np.testing.assert_allclose(grid, [0, 25, 50, 75, 100])
+    np.testing.assert_allclose(delta, grid / 10.0 - grid / 20.0)
+
+
+class _StandInEnv:
+    """Drives 10 m per step along a 95 m lap; renders a frame whose colour encodes the step."""
+
+    def __init__(self, lap_m: float = 95.0) -> None:
+        self.lap_m = lap_m
+        self.distance = 0.0
+        self.steps = 0
+        self.windows: list[tuple[int, ...]] = []
+
+    def reset(self, seed: int | None = None):
+        self.distance, self.steps = 0.0, 0
+        return np.zeros(4, np.float32), {}
+
+    def step(self, action):
+        self.steps += 1
+        self.distance += 10.0 * float(action[1])
+        laps = int(self.distance // self.lap_m)
+        info = {"laps": laps, "lap_times_s": [1.9] * laps, "damage": 0.0, "termination": None}
+        return np.full(4, self.steps, np.float32), 1.0, False, False, info
+
+    def render(self):
+        frame = np.zeros((40, 60, 3), np.uint8)
+        frame[..., 0] = (self.steps * 20) % 256
+        return frame
+
+
+def test_record_lap_and_gif(tmp_path: Path) -> None:
+    env = _StandInEnv()
+    seen: list[np.ndarray] = []
+
+    def policy(window: np.ndarray) -> np.ndarray:
+        seen.append(window.copy())
+        return np.array([0.0, 1.0, 0.0], np.float32)
+
+    result = record_lap(env, policy, window=3, max_steps=100, frame_every=2)
+    assert result["ending"] == "lap" and result["steps"] == 10  # 10 x 10 m passes 95 m
+    assert len(result["frames"]) == 1 + 5  # the reset frame + steps 2, 4, 6, 8, 10
+    assert seen[0].shape == (3, 4) and np.all(seen[0] == 0)  # padded with the first obs
+    np.testing.assert_array_equal(seen[2][:, 0], [0, 1, 2])
+    gif = write_gif(result["frames"], tmp_path / "lap.gif", 400.0)
+    with Image.open(gif) as img:
+        assert img.n_frames == 6 and img.info["duration"] == 400
+    with pytest.raises(UserInputError):
+        write_gif([], tmp_path / "none.gif", 100.0)
+    stalled = record_lap(_StandInEnv(), lambda w: np.zeros(3, np.float32), max_steps=7)
+    assert stalled["ending"] == "max_steps" and stalled["steps"] == 7
+
+
+def test_replay_rejects_bad_arguments(tmp_path: Path, capsys) -> None:
+    code, _, err = _run(["replay", str(tmp_path / "missing.pt"), "--track", "oval", "--gif",
+                         str(tmp_path / "lap.gif")], capsys)
+    assert code == 2 and "does not exist" in err
+    code, _, err = _run(["replay", str(tmp_path / "missing.pt"), "--track", "oval", "--gif",
+                         str(tmp_path / "lap.png")], capsys)
+    assert code == 2 and "must end in .gif" in err
+
+
+def test_replay_end_to_end(tmp_path: Path, capsys) -> None:
+    """A freshly initialised actor on the real env: the GIF is written whatever the lap."""
+    pytest.importorskip("formula_tourney.sim.catalog")
+    import gymnasium as gym
+
+    import formula_tourney  # noqa: F401 (registers the env)
+    from formula_tourney.agents.ddpg import DDPGAgent, save_checkpoint
+    from formula_tourney.agents.variants import AgentConfig
+
+    env = gym.make("FormulaRacing-v0", config={"track": "oval"})
+    obs_dim = int(np.prod(env.observation_space.shape))
+    env.close()
+    job = tmp_path / "job"
+    agent = DDPGAgent(AgentConfig(hidden=(16, 16)), obs_dim)
+    ckpt = save_checkpoint(agent, job / "checkpoints" / "best.pt")
+    (job / "config.json").write_text(json.dumps({"reference": "centre", "lac": False}))
+    code, out, _ = _run(["replay", str(ckpt), "--track", "oval", "--gif",
+                         str(tmp_path / "lap.gif"), "--max-steps", "12", "--frame-every", "3",
+                         "--json"], capsys)
+    assert code == 0, out
+    summary = json.loads(out)
+    assert summary["steps"] <= 12 and summary["frames"] >= 2
+    with Image.open(tmp_path / "lap.gif") as img:
+        assert img.n_frames == summary["frames"] and img.width > 100

@@ -1,0 +1,199 @@
+"""report.load and report.tables on the fixture tournament: numbers computed by hand."""
+
+from __future__ import annotations
+
+import math
+import sqlite3
+from pathlib import Path
+
+import pytest
+from report_fixtures import (
+    LIMIT_S,
+    build_empty_tournament,
+    build_tournament,
+    template_lap,
+)
+
+from formula_tourney.errors import UserInputError
+from formula_tourney.report import tables
+from formula_tourney.report.load import TournamentData, load_tournament, resolve_tournament
+
+E2 = 2.0 * math.exp(-2.0)  # the template's learning term at episode 300
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    base = tmp_path_factory.mktemp("results")
+    build_tournament(base)
+    build_empty_tournament(base)
+    return base
+
+
+@pytest.fixture(scope="module")
+def data(results: Path) -> TournamentData:
+    return load_tournament(results / "fixture-cup")
+
+
+@pytest.fixture(scope="module")
+def built(data: TournamentData) -> dict[str, tables.ReportTable]:
+    return {t.key: t for t in tables.build_tables(data)}
+
+
+def _record(table: tables.ReportTable, group: str, row: str) -> dict:
+    return next(r for r in table.records if r.get("group") == group and r["row"] == row)
+
+
+def _row(table: tables.ReportTable, label: str) -> dict:
+    return next(r for r in table.rows if r["label"] == label)
+
+
+def test_load_reports_every_gap(data: TournamentData) -> None:
+    problems = "\n".join(data.problems)
+    assert "part2/win4-rc/seed-2: failed (DivergedError" in problems
+    assert "part3/per1m-mot/seed-1: running" in problems
+    assert "part part4: no jobs" in problems
+    assert "baseline genetic on oval (part3): failed (TimeoutError" in problems
+    assert len(data.jobs) == 34
+    # 33 jobs wrote files; the failed one wrote episodes only, the running one nothing
+    assert data.tests["job_id"].nunique() == 32
+    assert data.episodes["job_id"].nunique() == 33
+    assert data.part_order() == ["part1", "part2", "part3", "ablation", "part4"]
+
+
+def test_resolve_tournament(results: Path) -> None:
+    assert resolve_tournament("fixture-cup", results) == results / "fixture-cup"
+    assert resolve_tournament(str(results / "empty-cup"), results) == results / "empty-cup"
+    assert resolve_tournament(None, results) in (results / "fixture-cup", results / "empty-cup")
+    with pytest.raises(UserInputError, match="known under .*empty-cup, fixture-cup"):
+        resolve_tournament("nope", results)
+    with pytest.raises(UserInputError, match="no part 'nope'"):
+        load_tournament(results / "fixture-cup", part="nope")
+
+
+def test_table1_hand_computed(built: dict[str, tables.ReportTable]) -> None:
+    t1 = built["table1"]
+    assert t1.groups[:3] == ["part1: oval MOT", "part2: technical MOT", "part2: technical RC"]
+    # win1 (WIN1_PART1): seed bests 27.1, 27.4, 27.2 (26.5 came with damage)
+    win1 = _record(t1, "part1: oval MOT", "win1")
+    assert win1["bLT"] == pytest.approx(27.1)
+    assert win1["aLT"] == pytest.approx((27.1 + 27.4 + 27.2) / 3)
+    assert win1["ci_low"] == pytest.approx(27.1) and win1["ci_high"] == pytest.approx(27.4)
+    assert win1["damage"] == pytest.approx(40.0)
+    assert win1["gap_pct"] == pytest.approx((27.1 / LIMIT_S["oval"] - 1) * 100)
+    assert sorted(win1["run_best_s"]) == pytest.approx([27.1, 27.2, 27.4])
+    # template runs: best at episode 300, start 0, + 0.1 per seed
+    win4 = _record(t1, "part1: oval MOT", "win4")
+    assert win4["bLT"] == pytest.approx(26.5 + 0.3 + E2)
+    assert win4["aLT"] == pytest.approx(26.5 + 0.3 + E2 + 0.1)
+    assert win4["bLT"] == pytest.approx(template_lap("oval", "win4", 0, 300, 0))
+    # ms3 only lapped with damage: DNF with its mean cumulative damage (2 starts x 35)
+    ms3 = _record(t1, "part1: oval MOT", "ms3")
+    assert ms3["status"] == "DNF" and math.isnan(ms3["bLT"]) and ms3["damage"] == 70.0
+    assert _row(t1, "ms3")["text"][("part1: oval MOT", "bLT")] == "DNF"
+    # the failed seed counts as planned but not run: 2/3
+    rc = _record(t1, "part2: technical RC", "win4")
+    assert (rc["runs"], rc["planned"], rc["finished_runs"]) == (2, 3, 2)
+    assert rc["aLT"] == pytest.approx(66.0 + 2.0 + E2 + 0.05)
+    assert _row(t1, "win4")["text"][("part2: technical RC", "runs")] == "2/3"
+
+
+def test_table1_baselines_limit_and_bold(built: dict[str, tables.ReportTable]) -> None:
+    t1 = built["table1"]
+    group = "part1: oval MOT"
+    assert _row(t1, "Follower (Tita)")["values"][(group, "bLT")] == pytest.approx(28.57)
+    assert _row(t1, "Genetic")["values"][(group, "bLT")] == pytest.approx(33.86)
+    limit = _row(t1, tables.LIMIT_LABEL)
+    assert limit["values"][(group, "bLT")] == pytest.approx(25.80)
+    assert limit["text"][(group, "gap")] == "+0.0%"
+    assert _row(t1, "Follower (Tita)")["text"][(group, "gap")] == "+10.7%"
+    best = t1.best_cells()
+    labels = {(t1.rows[i]["label"], g, m) for i, g, m in best}
+    assert ("win4", group, "bLT") in labels and ("win4", group, "aLT") in labels
+    assert not any(lab == tables.LIMIT_LABEL for lab, _, _ in labels)
+    # on the technical track with MOT the bot is fastest, and it is bold there
+    assert ("Follower (Tita)", "part2: technical MOT", "bLT") in labels
+    # the ablation pair shares a variant: its rows are named by entrant
+    assert {"win1", "win1-noat"} <= {r["label"] for r in t1.rows}
+
+
+def test_comparisons(built: dict[str, tables.ReportTable]) -> None:
+    comp = built["comparisons"]
+    rec = next(r for r in comp.records if r["group"] == "part1: oval MOT" and r["row"] == "win1")
+    assert rec["leader"] == "win4"
+    # win4 runs 27.07/27.17/27.27 vs win1 27.1/27.4/27.2: 3 + 2 + 1 of 9 pairs faster
+    assert rec["prob_faster"] == pytest.approx(6 / 9)
+    assert 0.0 <= rec["low"] <= rec["prob_faster"] <= rec["high"] <= 1.0
+
+
+def test_table2_lac(built: dict[str, tables.ReportTable]) -> None:
+    t2 = built["table2"]
+    assert t2.groups == ["oval", "technical"]
+    assert [r["label"] for r in t2.rows] == [
+        "Follower (Tita)", "per1m MOT", "per1m RC", "per1m RC + LAC", tables.LIMIT_LABEL]
+    lac = _row(t2, "per1m RC + LAC")
+    assert lac["values"][("technical", "bLT")] == pytest.approx(66.0 - 1.0 + E2)
+    assert lac["text"][("oval", "bLT")] == "-"  # never trained on the oval
+    # per1m RC pools part2 and part3 runs on the technical track: best is seed 0 of either
+    assert _row(t2, "per1m RC")["values"][("technical", "bLT")] == pytest.approx(67.5 + E2)
+    assert _row(t2, "Follower (Tita)")["values"][("technical", "bLT")] == pytest.approx(68.11)
+
+
+def test_table3_general_models(built: dict[str, tables.ReportTable]) -> None:
+    t3 = built["table3"]
+    assert t3.metrics["General"] == ["technical", "oval", "flowing"]
+    rc = _row(t3, "per1m RC")
+    # the store chose seed-1's episode-300 checkpoint: its laps, not seed-0's faster ones
+    assert rc["values"][("General", "technical")] == pytest.approx(66.0 + 1.5 + E2 + 0.1)
+    assert rc["values"][("General", "oval")] == pytest.approx(26.5 + 1.5 + E2 + 0.1 + 7.0)
+    assert rc["values"][("General", "flowing")] == pytest.approx(74.0 + 1.5 + E2 + 0.1 + 7.0)
+    assert rc["values"][("Best", "bLT")] == pytest.approx(66.0 + 1.5 + E2)
+    # computed by the report: best train lap among checkpoints finishing every track
+    lac = _row(t3, "per1m RC + LAC")
+    assert lac["values"][("General", "oval")] == pytest.approx(26.5 - 1.0 + E2 + 7.0)
+    mot = _row(t3, "per1m MOT")
+    assert mot["text"][("General", "flowing")] == "DNF"
+    assert mot["values"][("General", "technical")] == pytest.approx(72.0 + E2)
+    # the genetic bot drove the flowing track without finishing (DNF); its oval drive failed,
+    # so part 3 has no genetic oval lap and the best over parts (part 1's) is shown
+    assert _row(t3, "Genetic")["text"][("General", "flowing")] == "DNF"
+    assert _row(t3, "Genetic")["values"][("General", "oval")] == pytest.approx(33.86)
+    assert any("per1m MOT" in n and "not every track" in n for n in t3.notes)
+    assert any("part3/per1m-rc/seed-1 after 300" in n for n in t3.notes)
+
+
+def test_empty_part_and_empty_tournament_render(results: Path) -> None:
+    for root, part in ((results / "fixture-cup", "part4"), (results / "empty-cup", None)):
+        data = load_tournament(root, part=part)
+        built = tables.build_tables(data)
+        assert all(t.empty for t in built)
+        assert "no jobs" in tables.render_markdown(built[0])
+        doc = tables.latex_document(built, "x", data.problems)
+        assert doc.rstrip().endswith("\\end{document}")
+
+
+def test_unreadable_files_become_problems(tmp_path: Path) -> None:
+    root = build_tournament(tmp_path)
+    (root / "part1" / "win4" / "seed-0" / "tests.parquet").write_bytes(b"not parquet")
+    with sqlite3.connect(root / "index.sqlite") as con:
+        con.execute("DROP TABLE baselines")
+    data = load_tournament(root, part="part1")
+    problems = "\n".join(data.problems)
+    assert "part1/win4/seed-0: cannot read tests" in problems
+    assert "table 'baselines' unreadable" in problems
+    t1 = tables.build_tables(data)[0]
+    win4 = _record(t1, "part1: oval MOT", "win4")
+    assert win4["runs"] == 2 and win4["planned"] == 3
+    assert [r["kind"] for r in t1.rows].count("bot") == 0
+
+
+def test_markdown_and_latex_render(built: dict[str, tables.ReportTable]) -> None:
+    md = tables.render_markdown(built["table1"])
+    assert "| win4 | **27.07** | **27.17** | [27.07, 27.27] |" in md
+    assert "| ms3 | DNF | DNF |" in md
+    tex = tables.render_latex_tabular(built["table1"].subset(["part1: oval MOT"]))
+    assert "\\toprule" in tex and "\\bottomrule" in tex and "\\cmidrule(lr){2-8}" in tex
+    assert "win4 & \\textbf{27.07} & \\textbf{27.17} & [27.07, 27.27]" in tex
+    assert "27.10 & 27.23" in tex and "+5.0\\%" in tex
+    # families are separated: win rows, midrule, ms3
+    lines = tex.splitlines()
+    assert lines[lines.index(next(x for x in lines if x.startswith("ms3 "))) - 1] == "\\midrule"

@@ -1,0 +1,131 @@
+"""Tournament files: schema errors name file, line, key and allowed values; nothing is written."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from formula_tourney.cli import main
+from formula_tourney.errors import UserInputError
+from formula_tourney.tourney.plan import build_plan, describe_plan, make_jobs
+from formula_tourney.tourney.spec import TomlLocator, entrant_name, load_spec
+
+GOOD = """\
+name = "t1"
+
+[defaults]
+episodes = 3
+seeds = 2
+
+[variants.FAST4]
+base = "WIN4"
+overrides = { batch_size = 64 }
+
+[[parts]]
+name = "p1"
+entrants = ["FAST4", "MS2"]
+train_tracks = ["oval"]
+
+[[parts]]
+name = "p2"
+promoted_from = "p1"
+train_tracks = ["technical"]
+setups = [{ reference = "centre" }, { reference = "recorded", lac = true }]
+"""
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "t.toml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def test_good_file_plans_jobs(tmp_path: Path) -> None:
+    spec, _ = load_spec(write(tmp_path, GOOD))
+    plan = build_plan(spec, tmp_path / "results" / spec.name)
+    assert [j.job_id for j in plan[0].jobs] == [
+        "p1/FAST4-MOT/seed-0", "p1/FAST4-MOT/seed-1", "p1/MS2-MOT/seed-0", "p1/MS2-MOT/seed-1",
+    ]
+    fast = plan[0].jobs[0]
+    assert fast.config["variant"] == "WIN4" and fast.config["overrides"] == {"batch_size": 64}
+    assert fast.config["episodes"] == 3 and fast.meta["family"] == "DDPG"
+    assert plan[1].variants is None and plan[1].jobs == []
+    promoted = make_jobs(spec, spec.parts[1], 1, ["MS2"], tmp_path)
+    assert [j.meta["entrant"] for j in promoted] == ["MS2-MOT"] * 2 + ["MS2-RC-LAC"] * 2
+    assert describe_plan(spec, plan)["parts"][1]["jobs_per_entrant"] == 4
+
+
+@pytest.mark.parametrize(
+    ("edit", "line", "expected"),
+    [
+        (("episodes = 3", "episodes = -3"), 4, "defaults.episodes: Input should be greater"),
+        (('reference = "recorded"', 'reference = "racing"'), 20,
+         "'centre', 'recorded' or 'mincurv'"),
+        (('promoted_from = "p1"', 'promoted_from = "p9"'), 18,
+         "parts[1].promoted_from: unknown part 'p9'; allowed values (earlier parts): p1"),
+        (('entrants = ["FAST4", "MS2"]', 'entrants = ["FAST4", "MS9"]'), 13,
+         "unknown variant 'MS9'; allowed values: FAST4, WIN1"),
+        (("seeds = 2", "seedz = 2"), 5, "defaults.seedz: unknown key; allowed keys: seeds,"),
+        (("batch_size = 64", "batch_size = 0"), 9, "variants.FAST4.overrides: variant WIN4"),
+        (('name = "p2"', 'name = "p1"'), 17, "part name 'p1' is already used"),
+        (('name = "t1"', 'name = "../t1"'), 1, "name: Value error, invalid tournament name"),
+    ],
+)
+def test_errors_name_file_line_key_and_allowed(
+    tmp_path: Path, edit: tuple[str, str], line: int, expected: str
+) -> None:
+    path = write(tmp_path, GOOD.replace(*edit))
+    with pytest.raises(UserInputError) as info:
+        from formula_tourney.tourney.api import run_tournament
+
+        run_tournament(path, results_dir=tmp_path / "results", show_progress=False)
+    text = str(info.value)
+    assert f"{path}:{line}: " in text, text
+    assert expected in text, text
+    assert not (tmp_path / "results").exists()
+
+
+def test_cli_exit_2_and_nothing_written(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    path = write(tmp_path, GOOD.replace('train_tracks = ["technical"]',
+                                        'train_tracks = ["technicall"]'))
+    results = tmp_path / "results"
+    with pytest.raises(SystemExit) as info:
+        main(["run", str(path), "--results", str(results)])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert f"{path}:19: parts[1].train_tracks: unknown track 'technicall'" in err
+    assert "allowed values: " in err and "oval" in err
+    assert not results.exists()
+
+
+def test_toml_syntax_error_names_line(tmp_path: Path) -> None:
+    with pytest.raises(UserInputError, match=r"t.toml: not valid TOML: .*line 2, column 12"):
+        load_spec(write(tmp_path, 'name = "x"\nparts = [1,,]\n'))
+
+
+def test_locator_counts_array_tables() -> None:
+    loc = TomlLocator(GOOD)
+    assert loc.line_of(("parts", 1, "train_tracks")) == 19
+    assert loc.line_of(("parts", 0, "train_tracks")) == 14
+    assert loc.line_of(("variants", "FAST4", "overrides", "batch_size")) == 9
+    assert loc.line_of(("parts", 1, "setups", 0, "reference")) == 20
+
+
+def test_shipped_tournaments_validate() -> None:
+    root = Path(__file__).resolve().parents[1] / "tournaments"
+    for name in ("quick", "study1", "study2"):
+        spec, _ = load_spec(root / f"{name}.toml")
+        assert spec.name == name
+    spec, _ = load_spec(root / "study1.toml")
+    assert spec.settings(spec.parts[0])["seeds"] == 10
+    assert spec.settings(spec.parts[0])["episodes"] == 500
+    assert spec.settings(spec.parts[1])["episodes"] == 7000
+    assert {s.reference for s in spec.parts[1].setups} == {"centre", "recorded"}
+
+
+def test_entrant_names() -> None:
+    from formula_tourney.tourney.spec import Setup
+
+    assert entrant_name("PER1M", Setup(reference="recorded", lac=True)) == "PER1M-RC-LAC"
+    assert entrant_name("WIN4", Setup()) == "WIN4-MOT"

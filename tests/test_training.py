@@ -1,0 +1,169 @@
+"""Training loop: the job folder contract, early stop, NaN guard, tests' lap traces, CLI."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from formula_tourney.errors import UserInputError
+from formula_tourney.sim.track import Track
+from formula_tourney.training import loop
+from formula_tourney.training.config import TrainConfig
+from formula_tourney.training.evaluate import _lap_trace, start_positions
+
+SMALL = {
+    "hidden": [32, 32], "batch_size": 32, "learning_starts": 40, "buffer_size": 2000,
+    "exploration_steps": 200,
+}  # fmt: skip
+
+
+def _ring(name: str) -> Track:
+    a = np.linspace(0.0, 2 * np.pi, 400, endpoint=False)
+    return Track.from_centreline(name, 80 * np.cos(a), 80 * np.sin(a), 6.0, 6.0)
+
+
+@pytest.fixture
+def ring_tracks(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Small ring tracks under any name, so these tests do not depend on the catalog."""
+    monkeypatch.setattr(loop, "load_tracks", lambda names: {n: _ring(n) for n in names})
+
+
+def _cfg(**kw: object) -> TrainConfig:
+    base = dict(
+        variant="WIN4", overrides=SMALL, train_tracks=["ringA", "ringB"], episodes=3,
+        max_steps=60, test_every_episodes=2, test_starts=2, test_max_steps=70,
+        save_test_checkpoints=True, device="cpu", seed=5,
+    )  # fmt: skip
+    return TrainConfig(**{**base, **kw})
+
+
+def test_train_writes_the_job_folder_contract(tmp_path, ring_tracks) -> None:
+    calls: list[dict] = []
+    summary = loop.train(_cfg(), tmp_path / "job", calls.append)
+    job = tmp_path / "job"
+    assert json.loads((job / "config.json").read_text()) == _cfg().model_dump(mode="json")
+    eps = pd.read_parquet(job / "episodes.parquet")
+    assert list(eps.columns) == [
+        "episode", "track", "reward", "steps", "env_steps", "updates", "laps", "best_lap_s",
+        "damage", "termination", "epsilon", "seconds",
+    ]  # fmt: skip
+    assert list(eps.episode) == [1, 2, 3] and set(eps.track) <= {"ringA", "ringB"}
+    assert (eps.env_steps == eps.steps.cumsum()).all()
+    # one update per env step once learning_starts (40) steps are stored
+    expected_updates = np.maximum(0, eps.env_steps - 40 + 1)
+    assert list(eps.updates) == list(expected_updates)
+    assert eps.epsilon.iloc[-1] == pytest.approx(max(0.0, 1 - (eps.env_steps.iloc[-1] - 1) / 200))
+    tests = pd.read_parquet(job / "tests.parquet")
+    assert list(tests.columns) == [
+        "episode", "env_steps", "track", "start_s_m", "finished", "best_lap_s", "laps", "damage",
+        "reward", "steps", "termination", "checkpoint",
+    ]  # fmt: skip
+    # tests after episodes 2 and 3, on both train tracks, from 2 starts each
+    assert len(tests) == 2 * 2 * 2 and sorted(set(tests.episode)) == [2, 3]
+    assert set(tests.checkpoint) == {"checkpoints/ep-2.pt", "checkpoints/ep-3.pt"}
+    for rel in set(tests.checkpoint) | {"checkpoints/last.pt"}:
+        state = torch.load(job / rel, weights_only=True)
+        assert state["config"]["window"] == 4
+    laps = pd.read_parquet(job / "laps.parquet")
+    assert list(laps.columns) == [
+        "episode", "track", "start_s_m", "lap_index", "lap_time_s", "lap_damage", "clean",
+    ]  # fmt: skip
+    assert any(p.name.startswith("events.out.tfevents") for p in (job / "tb").iterdir())
+    on_disk = json.loads((job / "summary.json").read_text())
+    assert on_disk == json.loads(json.dumps(summary))
+    assert on_disk["episodes"] == 3 and on_disk["env_steps"] == int(eps.env_steps.iloc[-1])
+    assert on_disk["updates"] == int(eps.updates.iloc[-1])
+    assert [c["episode"] for c in calls] == [1, 2, 3]
+    assert calls[-1]["env_steps"] == on_disk["env_steps"]
+
+
+def test_same_seed_same_run(tmp_path, ring_tracks) -> None:
+    cfg = _cfg(episodes=2, save_test_checkpoints=False, test_every_episodes=5)
+    a = loop.train(cfg, tmp_path / "a")
+    b = loop.train(cfg, tmp_path / "b")
+    ea, eb = (pd.read_parquet(tmp_path / x / "episodes.parquet") for x in ("a", "b"))
+    pd.testing.assert_frame_equal(ea.drop(columns="seconds"), eb.drop(columns="seconds"))
+    assert a["env_steps"] == b["env_steps"]
+
+
+def test_progress_false_stops_early_and_finishes_folder(tmp_path, ring_tracks) -> None:
+    summary = loop.train(_cfg(episodes=50), tmp_path / "job", lambda p: p["episode"] < 2)
+    assert summary["episodes"] == 2 and summary["stopped_early"]
+    assert (tmp_path / "job" / "summary.json").exists()
+    assert len(pd.read_parquet(tmp_path / "job" / "tests.parquet")) > 0
+
+
+def test_nan_loss_raises_diverged_without_summary(tmp_path, ring_tracks, monkeypatch) -> None:
+    from formula_tourney.agents import ddpg
+
+    real = ddpg.DDPGAgent.update
+
+    def poisoned(self, batch, per_buffer=None):  # type: ignore[no-untyped-def]
+        info = real(self, batch, per_buffer)
+        return info._replace(critic_loss=math.nan) if self.updates >= 3 else info
+
+    monkeypatch.setattr(ddpg.DDPGAgent, "update", poisoned)
+    with pytest.raises(loop.DivergedError, match="update 3"):
+        loop.train(_cfg(), tmp_path / "job")
+    assert not (tmp_path / "job" / "summary.json").exists()
+
+
+def test_bad_input_fails_before_writing(tmp_path, ring_tracks) -> None:
+    with pytest.raises(UserInputError, match="unknown variant"):
+        loop.train(_cfg(variant="WIN3"), tmp_path / "job")
+    with pytest.raises(UserInputError, match="batch_size"):
+        loop.train(_cfg(overrides={**SMALL, "batch_size": "many"}), tmp_path / "job")
+    assert not (tmp_path / "job").exists()
+    with pytest.raises(UserInputError, match="reference"):
+        TrainConfig.parse({"reference": "racing"}, "train options")
+
+
+def test_best_lap_trace_is_cut_from_the_lap_window() -> None:
+    # 0.2 s steps; laps complete at t = 4.0 s (lap 1, 3.0 s, damaged) and t = 6.6 s (lap 2, 2.6 s)
+    rows = []
+    for k in range(1, 40):
+        t = 0.2 * k
+        laps = 0 if t < 4.0 - 1e-9 else (1 if t < 6.6 - 1e-9 else 2)
+        rows.append((t, 10 * t, t, 0.0, 0.0, 0.0, 100.0, 0.1, 1.0, 0.0, float(laps)))
+    trace = _lap_trace(rows, [3.0, 2.6], [5.0, 0.0], 2.6)
+    # steps from t = 4.0 to 6.6 (14 steps), re-timed from the lap start
+    assert len(trace) == 14
+    assert trace.time_s.iloc[0] == pytest.approx(0.0)
+    assert trace.time_s.iloc[-1] == pytest.approx(2.6)
+    assert list(trace.columns)[:3] == ["time_s", "distance_m", "s_m"]
+
+
+def test_start_positions_spread_over_the_lap() -> None:
+    assert start_positions(1000.0, 4) == pytest.approx([950.0, 700.0, 450.0, 200.0])
+
+
+def test_cli_train_and_eval_json(tmp_path, ring_tracks, capsys) -> None:
+    from formula_tourney.cli import main
+
+    out = tmp_path / "cli"
+    main([
+        "train", "--variant", "MS2", "--track", "ringA", "--episodes", "2", "--max-steps", "50",
+        "--test-every", "2", "--test-starts", "1", "--test-max-steps", "50", "--seed", "1",
+        "--set", "hidden=[16,16]", "--set", "batch_size=16", "--set", "learning_starts=20",
+        "--set", "buffer_size=1000", "--out", str(out), "--json",
+    ])  # fmt: skip
+    doc = json.loads(capsys.readouterr().out)
+    for key in ("best_lap_s", "laps", "damage", "finished", "episodes", "env_steps", "updates",
+                "seconds"):  # fmt: skip
+        assert key in doc
+    assert doc["episodes"] == 2 and doc["updates"] == doc["env_steps"] - 20 + 1
+    import formula_tourney.training.evaluate as ev
+
+    main(["eval", str(out / "checkpoints" / "last.pt"), "--track", "ringA", "--starts", "2",
+          "--max-steps", "40", "--json"])  # fmt: skip
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["episodes"] == 2 and doc["updates"] > 0 and 0 < doc["env_steps"] <= 80
+    assert ev is not None
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "--variant", "WIN1", "--out", str(out), "--episodes", "1"])
+    assert exc.value.code == 2  # finished job folder is not overwritten
