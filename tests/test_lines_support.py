@@ -51,3 +51,35 @@ def circle(radius_m: float, width_m: float = 10.0, points: int = 40000) -> Track
     th = np.linspace(0.0, 2 * np.pi, points, endpoint=False)
     return Track.from_centreline("circle", radius_m * np.cos(th), radius_m * np.sin(th),
                                  width_m / 2, width_m / 2)
+
+
+def symmetric_track(name: str, half: list[tuple[float, float]], width_m: float) -> Track:
+    """A closed track mirror-symmetric about the vertical through its start.
+
+    ``half`` (length, curvature) segments must turn by exactly pi; a straight is appended so
+    the half ends on the axis, and the second half is the first one reversed (mirror plus
+    reversed direction keeps each turn's sign), so the loop closes by construction.
+    """
+    heading, x = 0.0, 0.0
+    for length, k in half:
+        if k == 0.0:
+            x += length * np.cos(heading)
+        else:
+            x += (np.sin(heading + k * length) - np.sin(heading)) / k
+            heading += k * length
+    assert abs(heading - np.pi) < 1e-9, "half must turn by pi"
+    segs = half + [(2.0 * x, 0.0)] + half[::-1]
+    return segment_track(name, segs, width_m)
+
+
+def technical_like(width_m: float = 10.0) -> Track:
+    """About 2 km, 10 m wide, 12 m hairpins, a chicane and a fast sweeper (like Aalborg)."""
+    q = np.pi / 2
+    half = [
+        (250.0, 0.0), (q * 40.0, 1 / 40.0), (100.0, 0.0), (q * 25.0, -1 / 25.0), (60.0, 0.0),
+        (np.pi * 12.0, 1 / 12.0), (120.0, 0.0), (q / 2 * 30.0, 1 / 30.0),
+        (q / 2 * 30.0, -1 / 30.0), (90.0, 0.0), (q * 15.0, 1 / 15.0), (40.0, 0.0),
+        (q * 15.0, -1 / 15.0), (60.0, 0.0), (q / 2 * 60.0, -1 / 60.0), (q / 2 * 60.0, 1 / 60.0),
+        (80.0, 0.0),
+    ]
+    return symmetric_track("technical-like", half, width_m)

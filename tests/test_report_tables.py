@@ -159,6 +159,10 @@ def test_table3_general_models(built: dict[str, tables.ReportTable]) -> None:
     assert _row(t3, "Genetic")["values"][("General", "oval")] == pytest.approx(33.86)
     assert any("per1m MOT" in n and "not every track" in n for n in t3.notes)
     assert any("part3/per1m-rc/seed-1 after 300" in n for n in t3.notes)
+    # bold per General column too: the LAC model on the technical track, the bot elsewhere
+    best = {(t3.rows[i]["label"], g, m) for i, g, m in t3.best_cells()}
+    assert ("per1m RC + LAC", "General", "technical") in best
+    assert ("Follower (Tita)", "General", "flowing") in best
 
 
 def test_empty_part_and_empty_tournament_render(results: Path) -> None:
@@ -174,12 +178,14 @@ def test_empty_part_and_empty_tournament_render(results: Path) -> None:
 def test_unreadable_files_become_problems(tmp_path: Path) -> None:
     root = build_tournament(tmp_path)
     (root / "part1" / "win4" / "seed-0" / "tests.parquet").write_bytes(b"not parquet")
+    (root / "part1" / "per1m" / "seed-2" / "tests.parquet").unlink()
     with sqlite3.connect(root / "index.sqlite") as con:
         con.execute("DROP TABLE baselines")
     data = load_tournament(root, part="part1")
     problems = "\n".join(data.problems)
     assert "part1/win4/seed-0: cannot read tests" in problems
     assert "table 'baselines' unreadable" in problems
+    assert "part1/per1m/seed-2: marked done but" in problems and "(missing)" in problems
     t1 = tables.build_tables(data)[0]
     win4 = _record(t1, "part1: oval MOT", "win4")
     assert win4["runs"] == 2 and win4["planned"] == 3

@@ -90,6 +90,13 @@ class AgentConfig(BaseModel):
     )
     # --- DDPG ---------------------------------------------------------------------------------
     gamma: float = Field(0.99, gt=0.0, le=1.0, description="Discount factor gamma.")
+    reward_scale: float = Field(
+        0.02,
+        gt=0.0,
+        description="Rewards are multiplied by this before they enter the replay buffer. The "
+        "paper's reward is Vx in m/s per step (up to ~80), so Q reaches thousands; scaled, the "
+        "critic starts near its targets' size.",
+    )
     tau: float = Field(
         0.005,
         gt=0.0,

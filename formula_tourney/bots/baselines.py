@@ -100,5 +100,15 @@ def reference_table(tracks: list[Track], laps: int = 2, car: CarParams | None = 
 
 
 def public(report: dict) -> dict:
-    """A report without its bulky arrays (what ``--json`` prints)."""
-    return {k: v for k, v in report.items() if not k.startswith("_")}
+    """A report without its bulky arrays, NaN as null (what ``--json`` prints: strict JSON)."""
+    return {k: _no_nan(v) for k, v in report.items() if not k.startswith("_")}
+
+
+def _no_nan(value):
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, list):
+        return [_no_nan(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _no_nan(v) for k, v in value.items()}
+    return value

@@ -39,7 +39,7 @@ def register(app: typer.Typer) -> None:
             "--json", help="Print one JSON document (tables with CIs, problems, files).")] = False,
     ) -> None:
         """Tables 1-3 of the paper with 95% CIs, gap to the reference limit, and figures."""
-        from formula_tourney.commands.output import emit
+        from formula_tourney.commands.output import emit, message
         from formula_tourney.report.build import build_report
 
         chosen = [name for name, on in (("markdown", markdown), ("latex", latex),
@@ -47,6 +47,8 @@ def register(app: typer.Typer) -> None:
         if len(chosen) > 1:
             raise UserInputError(f"choose one output format, not {' and '.join(chosen)}")
         fmt = chosen[0] if chosen else "terminal"
+        if figures or (figures is None and (fmt in ("latex", "html") or out is not None)):
+            message("drawing figures (PNG and PDF); --no-figures skips them")
         built = build_report(tournament, results, part=part, out_dir=out, fmt=fmt,
                              figures=figures)
         emit(built.to_json(), as_json, built.render)

@@ -63,6 +63,15 @@ class Report:
                           markup=False, highlight=False)
 
 
+    def render_tables(self, console: Any, keys: tuple[str, ...] = ("table1",)) -> None:
+        """Only some tables, e.g. Table 1 at the end of ``demo``; problems are still said."""
+        for problem in self.data.problems:
+            console.print(f"  - {problem}", markup=False)
+        for table in self.tables:
+            if table.key in keys:
+                tables_mod.render_rich(table, console)
+
+
 def _job_counts(data: TournamentData) -> dict[str, int]:
     if data.jobs.empty:
         return {"total": 0}

@@ -77,7 +77,8 @@ class TournamentData:
     def job_dir(self, job_id: str) -> Path:
         """Folder of one job (the index's relative ``path``, else the contract's default)."""
         row = self.jobs.loc[self.jobs["job_id"] == job_id]
-        rel = str(row["path"].iloc[0]) if not row.empty and row["path"].iloc[0] else job_id
+        rel = str(row["path"].iloc[0]) if not row.empty and _present(row["path"].iloc[0]) \
+            else job_id
         return self.root / rel
 
     def trace_path(self, job_id: str, track: str) -> Path:

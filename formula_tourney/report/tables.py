@@ -197,6 +197,8 @@ class ReportTable:
     rows: list[dict[str, Any]] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     records: list[dict[str, Any]] = field(default_factory=list)
+    lap_metrics: set[str] = field(default_factory=lambda: set(LAP_METRICS))
+    """Metrics holding lap times: the lowest per column is bold."""
 
     def add_row(self, label: str, kind: str, family: str = "") -> dict[str, Any]:
         row = {"label": label, "kind": kind, "family": family, "values": {}, "text": {}}
@@ -218,7 +220,7 @@ class ReportTable:
         """
         best: set[tuple[int, str, str]] = set()
         for group, metric in self.columns:
-            if metric not in LAP_METRICS:
+            if metric not in self.lap_metrics:
                 continue
             vals = [(i, r["values"].get((group, metric), math.nan)) for i, r in
                     enumerate(self.rows) if r["kind"] != "limit"]
@@ -244,7 +246,8 @@ class ReportTable:
                 for g in groups}
         sub = ReportTable(key=self.key + suffix, title=self.title, caption=self.caption,
                           groups=list(groups), metrics=keep, notes=list(self.notes),
-                          records=[r for r in self.records if r.get("group") in groups])
+                          records=[r for r in self.records if r.get("group") in groups],
+                          lap_metrics=set(self.lap_metrics))
         shown = set().union(*(self.shown(g) for g in groups)) if groups else set()
         sub.rows = [r for i, r in enumerate(self.rows) if i in shown]
         return sub
@@ -632,6 +635,7 @@ def table3(ctx: Context) -> ReportTable:
     best_group = "Best" if len(trains) == 1 else "Best (train track)"
     table.groups = [best_group, "General"]
     table.metrics = {best_group: ["bLT", "aLT", "gap"], "General": list(all_tracks)}
+    table.lap_metrics = {"bLT", "aLT", *all_tracks}
     for label, cfg in cfgs.items():
         row = table.add_row(label, "entrant")
         limit = ctx.limits.get(cfg["train"], math.nan)

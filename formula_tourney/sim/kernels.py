@@ -521,10 +521,11 @@ def physics_substep(st: np.ndarray, steer: float, cd: float, sd: float, throttle
 def wall_contact(st: np.ndarray, geom: np.ndarray, p: np.ndarray, grass_w: float) -> float:
     """Keep the car inside the walls; return the damage of an impact (0 if none).
 
-    Walls stand ``grass_w`` beyond each asphalt edge. The body's half extent across the track
-    depends on its angle to it. An impact reverses ``restitution`` of the normal speed, scrubs
-    tangential speed in proportion to the normal speed (Coulomb friction on the impulse) and adds
-    ``wall_damage_per_mps`` damage per m/s of normal speed.
+    Walls stand ``grass_w`` beyond each asphalt edge. The body corner deepest into the wall
+    takes an impulse (restitution ``wall_restitution``, Coulomb friction along the wall) that
+    acts on both speed and yaw rate, so a car hitting at an angle is turned along the wall
+    instead of grinding into it. Damage is ``wall_damage_per_mps`` per m/s of that corner's
+    speed into the wall.
     """
     i = int(st[ST_IDX])
     lat = st[ST_LAT]
@@ -533,42 +534,68 @@ def wall_contact(st: np.ndarray, geom: np.ndarray, p: np.ndarray, grass_w: float
     if lat + reach < geom[i, G_WL] + grass_w and -lat + reach < geom[i, G_WR] + grass_w:
         return 0.0
     th = geom[i, G_H]
-    rel = st[ST_PSI] - th
-    extent = 0.5 * (p[P_WID] * abs(math.cos(rel)) + p[P_LEN] * abs(math.sin(rel)))
+    psi = st[ST_PSI]
+    cp = math.cos(psi)
+    sp = math.sin(psi)
+    nx = -math.sin(th)  # wall normal, pointing into the left wall
+    ny = math.cos(th)
+    # Deepest corner towards each wall: its offset across the track is the body's extent.
+    hl = 0.5 * p[P_LEN]
+    hw = 0.5 * p[P_WID]
+    a_l = cp * nx + sp * ny  # body x axis . normal
+    b_l = -sp * nx + cp * ny  # body y axis . normal
+    sx = 1.0 if a_l >= 0.0 else -1.0
+    sy = 1.0 if b_l >= 0.0 else -1.0
+    extent = hl * abs(a_l) + hw * abs(b_l)
     pen_l = lat + extent - (geom[i, G_WL] + grass_w)
     pen_r = -lat + extent - (geom[i, G_WR] + grass_w)
     if pen_l <= 0.0 and pen_r <= 0.0:
         return 0.0
-    nx = -math.sin(th)
-    ny = math.cos(th)
-    pen = pen_l
     if pen_r > pen_l:
         nx, ny, pen = -nx, -ny, pen_r
+        sx, sy = -sx, -sy
         st[ST_LAT] = lat + pen
     else:
+        pen = pen_l
         st[ST_LAT] = lat - pen
     st[ST_X] -= pen * nx
     st[ST_Y] -= pen * ny
-    psi = st[ST_PSI]
-    cp = math.cos(psi)
-    sp = math.sin(psi)
+    # Contact corner relative to the centre of gravity, world frame.
+    cx = sx * hl * cp - sy * hw * sp
+    cy = sx * hl * sp + sy * hw * cp
+    m = p[P_MASS]
+    iz = p[P_IZ]
+    r = st[ST_R]
     vwx = st[ST_VX] * cp - st[ST_VY] * sp
     vwy = st[ST_VX] * sp + st[ST_VY] * cp
-    vn = vwx * nx + vwy * ny
+    vcx = vwx - r * cy
+    vcy = vwy + r * cx
+    vn = vcx * nx + vcy * ny
     if vn <= 0.0:
         return 0.0
-    e = p[P_WALL_E]
-    tx = vwx - vn * nx
-    ty = vwy - vn * ny
+    rn = cx * ny - cy * nx
+    jn = (1.0 + p[P_WALL_E]) * vn / (1.0 / m + rn * rn / iz)
+    vwx -= jn * nx / m
+    vwy -= jn * ny / m
+    r -= jn * rn / iz
+    # Friction impulse along the wall, at most enough to stop the corner sliding.
+    vcx = vwx - r * cy
+    vcy = vwy + r * cx
+    vn2 = vcx * nx + vcy * ny
+    tx = vcx - vn2 * nx
+    ty = vcy - vn2 * ny
     vt = math.sqrt(tx * tx + ty * ty)
-    scale = 0.0
     if vt > 1e-9:
-        scale = max(0.0, vt - WALL_FRICTION * (1.0 + e) * vn) / vt
-    vwx = tx * scale - e * vn * nx
-    vwy = ty * scale - e * vn * ny
+        tx /= vt
+        ty /= vt
+        rt = cx * ty - cy * tx
+        jt = min(WALL_FRICTION * jn, vt / (1.0 / m + rt * rt / iz))
+        vwx -= jt * tx / m
+        vwy -= jt * ty / m
+        r -= jt * rt / iz
     st[ST_VX] = vwx * cp + vwy * sp
     st[ST_VY] = -vwx * sp + vwy * cp
-    st[ST_R] *= 0.5
+    st[ST_R] = r
     return p[P_WALL_DMG] * vn
 
 

@@ -233,7 +233,10 @@ def train(
             epsilon = linear_epsilon(env_steps, agent_cfg.exploration_steps)
             action, _ = noise(agent.act(stack), epsilon)
             next_obs, reward, terminated, truncated, info = env.step(action)
-            buffer.add(obs, action, float(reward), next_obs, bool(terminated), bool(truncated))
+            buffer.add(
+                obs, action, float(reward) * agent_cfg.reward_scale, next_obs,
+                bool(terminated), bool(truncated),
+            )  # fmt: skip
             env_steps += 1
             steps += 1
             ep_reward += float(reward)

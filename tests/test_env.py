@@ -1,0 +1,217 @@
+"""The Gymnasium env: API, config, reward, episode ends, laps, walls, rendering (issue 2, item 5)."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from simtracks import stadium
+
+import formula_tourney  # noqa: F401  (registers FormulaRacing-v0)
+from formula_tourney.errors import UserInputError
+from formula_tourney.sim import kernels as K
+from formula_tourney.sim.env import FormulaRacingEnv, default_config
+
+TRACK = stadium()  # 400 m straights, radius 80 m, 12 m wide; length ~1302.65 m
+INFO_KEYS = {"lap_times_s", "lap_damage", "last_lap_s", "best_lap_s", "laps", "damage",
+             "distance_m", "s_m", "lateral_m", "speed_mps", "off_track", "termination"}
+
+
+def driver(obs: np.ndarray, target_mps: float = 24.0) -> np.ndarray:
+    """A simple line follower on the telemetry: enough to lap the stadium cleanly."""
+    angle = obs[K.OBS_ANGLE] * math.pi
+    steer = np.clip(-2.0 * angle - 0.6 * obs[K.OBS_TRACKPOS], -1, 1)
+    err = target_mps - obs[K.OBS_VX] * K.SPEED_SCALE_MPS
+    return np.array([steer, np.clip(0.3 * err, 0, 1), np.clip(-0.2 * err, 0, 1)], np.float32)
+
+
+def test_check_env_passes():
+    env = gymnasium.make("FormulaRacing-v0", config={"track": TRACK, "random_start": True},
+                         render_mode="rgb_array")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # unbounded Box entries are deliberate (speeds, rpm)
+        check_env(env.unwrapped, skip_render_check=False)
+    assert env.unwrapped.observation_names[20] == "trackPos"
+
+
+def test_same_seed_same_trajectory():
+    def run(seed: int) -> tuple[np.ndarray, list[float]]:
+        env = gymnasium.make("FormulaRacing-v0",
+                             config={"track": TRACK, "random_start": True, "start_speed_mps": 20})
+        obs, _ = env.reset(seed=seed)
+        act_rng = np.random.default_rng(7)
+        trace, rewards = [obs], []
+        for _ in range(60):
+            obs, r, term, trunc, _ = env.step(
+                act_rng.uniform([-0.2, 0, 0], [0.2, 1, 0.2]).astype(np.float32))
+            trace.append(obs)
+            rewards.append(r)
+            if term or trunc:
+                obs, _ = env.reset()
+                trace.append(obs)
+        return np.array(trace), rewards
+
+    a, ra = run(3)
+    b, rb = run(3)
+    c, _ = run(4)
+    assert np.array_equal(a, b) and ra == rb
+    assert not np.array_equal(a[0], c[0])  # another seed, another start
+
+
+def test_config_is_checked():
+    assert set(default_config()) >= {
+        "track", "reference_line", "lac", "lac_distances_m", "control_period_s", "physics_hz",
+        "max_steps", "terminate_off_track", "terminate_backwards", "terminate_slow",
+        "slow_speed_kmh", "slow_patience_steps", "damage_weight", "random_start",
+        "start_speed_mps", "car"}
+    bad = [({"trak": "oval"}, "unknown key"), ({"physics_hz": 50}, "physics_hz"),
+           ({"max_steps": 0}, "max_steps"), ({"lac": "yes"}, "lac"),
+           ({"reference_line": np.zeros(5)}, "reference_line"),
+           ({"reference_line": "racing"}, "reference_line"), ({"car": {"mu": -1}}, "car"),
+           ({"track": 3}, "track"), ({"lac_distances_m": []}, "lac_distances_m")]
+    for extra, match in bad:
+        cfg = {"track": TRACK, **extra}
+        with pytest.raises(UserInputError, match=match):
+            FormulaRacingEnv(config=cfg)
+    env = FormulaRacingEnv(config={"track": TRACK})
+    with pytest.raises(UserInputError, match="start_lap"):
+        env.reset(options={"start_lap": 1})
+
+
+def test_physics_rate_sets_the_substeps():
+    env = FormulaRacingEnv(config={"track": TRACK, "physics_hz": 250, "control_period_s": 0.1})
+    assert env._b.n_sub == 25
+    assert env.metadata["render_fps"] == pytest.approx(10.0)
+
+
+def test_default_start_and_flying_laps_with_interpolated_timing():
+    env = FormulaRacingEnv(config={"track": TRACK, "max_steps": 2000})
+    obs, info = env.reset(seed=0)
+    assert set(info) == INFO_KEYS
+    assert info["s_m"] == pytest.approx(TRACK.length_m - 50.0, abs=1e-6)
+    assert info["speed_mps"] == 0.0 and math.isnan(info["best_lap_s"])
+    laps_seen, t = [], 0
+    while len(laps_seen) < 2:
+        obs, r, term, trunc, info = env.step(driver(obs))
+        t += 1
+        assert not term and not trunc, info
+        if info["laps"] > len(laps_seen):
+            laps_seen.append(info["last_lap_s"])
+    lap = laps_seen[1]
+    # Flying laps of a ~1303 m loop at ~24 m/s: ~54 s, not a multiple of the 0.2 s step.
+    assert 50.0 < lap < 60.0
+    assert abs(lap / 0.2 - round(lap / 0.2)) > 1e-6 or abs(laps_seen[0] / 0.01 % 1) > 1e-6
+    assert info["lap_times_s"] == laps_seen and info["best_lap_s"] == min(laps_seen)
+    assert info["lap_damage"] == [0.0, 0.0] and info["damage"] == 0.0
+    assert info["distance_m"] == pytest.approx(50.0 + 2 * TRACK.length_m + info["s_m"],
+                                               abs=1.0)
+
+
+def test_lap_clock_interpolates_inside_the_substep():
+    env = FormulaRacingEnv(config={"track": TRACK})
+    # 0.5 m before the line at 20 m/s: the line is crossed 0.025 s in, inside substep 3.
+    env.reset(options={"start_s_m": TRACK.length_m - 0.5, "start_speed_mps": 20.0})
+    env.step(np.array([0, 0, 0], np.float32))
+    assert env._b.state[0, K.ST_LAP_START] == pytest.approx(0.025, abs=2e-4)
+
+
+def test_reward_is_the_papers_and_off_track_ends_with_minus_one():
+    env = FormulaRacingEnv(config={"track": TRACK})
+    obs, _ = env.reset(options={"start_s_m": 100.0, "start_speed_mps": 30.0})
+    obs, r, term, trunc, info = env.step(np.array([0.0, 0.5, 0.0], np.float32))
+    theta = obs[K.OBS_ANGLE] * math.pi
+    vx = obs[K.OBS_VX] * K.SPEED_SCALE_MPS
+    expect = vx * (math.cos(theta) - abs(math.sin(theta)) - abs(obs[K.OBS_TRACKPOS]))
+    assert r == pytest.approx(expect, rel=1e-5) and 25 < r < 35
+    for _ in range(30):
+        obs, r, term, trunc, info = env.step(np.array([0.15, 0.5, 0.0], np.float32))
+        if term:
+            break
+    assert term and not trunc and r == -1.0
+    assert info["termination"] == "off_track" and info["off_track"]
+    assert np.all(obs[K.OBS_TRACK:K.OBS_TRACK + 19] == -1.0)
+
+
+def test_backwards_slow_and_max_steps_ends():
+    env = FormulaRacingEnv(config={"track": TRACK})
+    env.reset(options={"start_s_m": 100.0})
+    env._b.state[0, K.ST_PSI] += math.pi
+    _, r, term, _, info = env.step(np.zeros(3, np.float32))
+    assert term and r == -1.0 and info["termination"] == "backwards"
+
+    env = FormulaRacingEnv(config={"track": TRACK, "slow_patience_steps": 5,
+                                   "slow_penalty": 50.0})
+    env.reset(options={"start_s_m": 100.0})
+    for k in range(5):
+        _, r, term, trunc, info = env.step(np.array([0, 0, 1], np.float32))
+    assert k == 4 and term and r == -50.0 and info["termination"] == "slow"
+
+    env = FormulaRacingEnv(config={"track": TRACK, "max_steps": 7, "terminate_slow": False})
+    env.reset(options={"start_s_m": 100.0})
+    for _ in range(7):
+        _, _, term, trunc, info = env.step(np.zeros(3, np.float32))
+    assert trunc and not term and info["termination"] == "max_steps"
+
+
+def _paper_reward(obs: np.ndarray) -> float:
+    theta = obs[K.OBS_ANGLE] * math.pi
+    vx = obs[K.OBS_VX] * K.SPEED_SCALE_MPS
+    return float(vx * (math.cos(theta) - abs(math.sin(theta)) - abs(obs[K.OBS_TRACKPOS])))
+
+
+def test_wall_impulse_damage_is_proportional_to_impact_speed():
+    env = FormulaRacingEnv(config={"track": TRACK, "grass_width_m": 5.0})
+    env.reset(options={"start_s_m": 100.0})
+    b, car = env._b, env.car
+    for vn in (3.0, 6.0):
+        st = np.zeros(K.N_STATE)
+        # Straight along the bottom straight (heading +x), touching the left wall at y = 11 m,
+        # moving 30 m/s along the track and vn towards the wall, no yaw rate.
+        st[K.ST_X], st[K.ST_PSI], st[K.ST_IDX] = 100.0, 0.0, b.state[0, K.ST_IDX]
+        st[K.ST_Y] = st[K.ST_LAT] = 11.0 - car.car_width_m / 2 + 0.01
+        st[K.ST_VX], st[K.ST_VY] = 30.0, vn
+        dmg = K.wall_contact(st, b.geom, b.params, 5.0)
+        assert dmg == pytest.approx(car.wall_damage_per_mps * vn, rel=1e-9)
+        assert st[K.ST_LAT] == pytest.approx(11.0 - car.car_width_m / 2, abs=1e-9)
+        speed_after = math.hypot(st[K.ST_VX], st[K.ST_VY])
+        assert speed_after < math.hypot(30.0, vn) - 0.5 * vn  # friction scrubs speed
+        assert st[K.ST_VY] < 0.0  # bounced off
+
+
+def test_wall_hit_in_the_env_costs_speed_and_reward():
+    damages = []
+    for speed in (15.0, 30.0):
+        env = FormulaRacingEnv(config={"track": TRACK, "terminate_off_track": False,
+                                       "terminate_backwards": False, "damage_weight": 0.01})
+        env.reset(options={"start_s_m": 100.0, "start_speed_mps": speed})
+        env._b.state[0, K.ST_PSI] = math.radians(20)  # 20 deg towards the left wall
+        hit = False
+        for _ in range(15):
+            prev_damage = env._b.state[0, K.ST_DAMAGE]
+            obs, r, term, _, info = env.step(np.array([0, 0, 0], np.float32))
+            assert info["lateral_m"] <= 6.0 + 5.0  # never through the wall
+            if info["damage"] > prev_damage and not hit:
+                hit = True
+                assert info["speed_mps"] < 0.9 * speed
+                assert r == pytest.approx(
+                    _paper_reward(obs) - 0.01 * (info["damage"] - prev_damage), rel=1e-4)
+        assert hit
+        damages.append(info["damage"])
+    assert damages[1] > 1.7 * damages[0]
+    assert 300.0 < damages[0] < 3000.0
+
+
+def test_render_rgb_array_shows_the_car():
+    env = FormulaRacingEnv(config={"track": TRACK}, render_mode="rgb_array")
+    env.reset(options={"start_s_m": 200.0})
+    frame = env.render()
+    assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3
+    r = env._renderer
+    cx, cy = r.to_px(env._b.state[0, K.ST_X], env._b.state[0, K.ST_Y])
+    assert tuple(frame[int(cy), int(cx)]) == (220, 30, 30)
+    assert tuple(r.background[int(cy), int(cx)]) != (220, 30, 30)
+    assert FormulaRacingEnv(config={"track": TRACK}).render() is None
