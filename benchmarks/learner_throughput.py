@@ -175,13 +175,12 @@ def gemm_flops(calls: list[tuple[Any, list[Any], dict[str, Any]]]) -> int:
 
 
 def time_gemms(calls: list[tuple[Any, list[Any], dict[str, Any]]], reps: int = 30) -> float:
-    for func, args, kw in calls:
-        func(*args, **kw)
+    """Total seconds of ``reps`` replays of the update's GEMMs."""
     t0 = time.perf_counter()
     for _ in range(reps):
         for func, args, kw in calls:
             func(*args, **kw)
-    return (time.perf_counter() - t0) / reps
+    return time.perf_counter() - t0
 
 
 def profile_update(ours: Ours, n: int = 40) -> list[dict[str, Any]]:
@@ -223,16 +222,31 @@ def main() -> None:
     for o in lstm.values():
         o.steps(BATCH + 5)
 
+    # Each round alternates short blocks of every measurement, so all of them see the same
+    # load from other processes on this shared machine; medians over rounds are reported.
     loop_rate, upd_rate, sb3_rate, gemm_s = [], [], [], []
     lstm_rate: dict[str, list[float]] = {v: [] for v in lstm}
+    block = 50
     for r in range(args.rounds):
-        loop_rate.append(args.steps / ours.steps(args.steps))
-        upd_rate.append(args.steps / ours.updates(args.steps))
-        gemm_s.append(time_gemms(calls))
+        t_loop = t_upd = t_sb3 = t_gemm = 0.0
+        t_lstm = dict.fromkeys(lstm, 0.0)
+        n_blocks = max(1, args.steps // block)
+        for _ in range(n_blocks):
+            t_loop += ours.steps(block)
+            t_upd += ours.updates(block)
+            t_gemm += time_gemms(calls, reps=block)
+            if sb3 is not None:
+                t_sb3 += sb3.steps(block)
+            for v, o in lstm.items():
+                t_lstm[v] += o.updates(10)
+        n = n_blocks * block
+        loop_rate.append(n / t_loop)
+        upd_rate.append(n / t_upd)
+        gemm_s.append(t_gemm / n)
         if sb3 is not None:
-            sb3_rate.append(args.steps / sb3.steps(args.steps))
-        for v, o in lstm.items():
-            lstm_rate[v].append(60 / o.updates(60))
+            sb3_rate.append(n / t_sb3)
+        for v in lstm:
+            lstm_rate[v].append(n_blocks * 10 / t_lstm[v])
         print(f"round {r + 1}: ours {loop_rate[-1]:.1f} steps/s (update alone "
               f"{upd_rate[-1]:.1f}/s), SB3 {sb3_rate[-1] if sb3_rate else float('nan'):.1f} "
               f"steps/s, GEMMs {gemm_s[-1] * 1e3:.2f} ms", file=sys.stderr)  # fmt: skip

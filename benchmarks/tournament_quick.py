@@ -36,14 +36,21 @@ def measure(file: Path, workers: int, results: Path) -> dict[str, float]:
     ).fetchone()
     failed = db.execute("SELECT COUNT(*) FROM jobs WHERE status='failed'").fetchone()[0]
     db.close()
-    return {"workers": workers, "wall_s": wall, "jobs_done": jobs, "jobs_failed": failed,
-            "job_wall_s": job_wall or 0.0, "train_s": train_s or 0.0}
+    return {
+        "workers": workers,
+        "wall_s": wall,
+        "jobs_done": jobs,
+        "jobs_failed": failed,
+        "job_wall_s": job_wall or 0.0,
+        "train_s": train_s or 0.0,
+    }
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--file", type=Path,
-                        default=Path(__file__).resolve().parents[1] / "tournaments/quick.toml")
+    parser.add_argument(
+        "--file", type=Path, default=Path(__file__).resolve().parents[1] / "tournaments/quick.toml"
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON document")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="ft-bench-") as tmp:
@@ -53,11 +60,14 @@ def main() -> None:
     setup_s = one["job_wall_s"] - one["train_s"]
     parent_s = one["wall_s"] - one["job_wall_s"]
     out = {
-        "file": str(args.file), "one_worker": one, "two_workers": two,
+        "file": str(args.file),
+        "one_worker": one,
+        "two_workers": two,
         "parallel_efficiency": efficiency,
         "overhead_s": one["wall_s"] - one["train_s"],
         "overhead_fraction": (one["wall_s"] - one["train_s"]) / one["wall_s"],
-        "worker_setup_s": setup_s, "parent_s": parent_s,
+        "worker_setup_s": setup_s,
+        "parent_s": parent_s,
     }
     if args.json:
         print(json.dumps(out))
@@ -66,9 +76,11 @@ def main() -> None:
     print(f"  1 worker : {one['wall_s']:7.1f} s wall, {one['train_s']:7.1f} s inside train()")
     print(f"  2 workers: {two['wall_s']:7.1f} s wall, {two['train_s']:7.1f} s inside train()")
     print(f"parallel efficiency: {efficiency:.2f} (ideal 1.00)")
-    print(f"orchestration overhead (1 worker): {out['overhead_s']:.1f} s = "
-          f"{100 * out['overhead_fraction']:.1f}% of wall (ideal 0%): worker setup "
-          f"{setup_s:.1f} s, parent {parent_s:.1f} s")
+    print(
+        f"orchestration overhead (1 worker): {out['overhead_s']:.1f} s = "
+        f"{100 * out['overhead_fraction']:.1f}% of wall (ideal 0%): worker setup "
+        f"{setup_s:.1f} s, parent {parent_s:.1f} s"
+    )
 
 
 if __name__ == "__main__":

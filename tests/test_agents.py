@@ -187,3 +187,25 @@ def test_ddpg_learns_a_contextual_bandit() -> None:
     test = np.array([[0.8, 0.0], [-0.8, 0.0], [0.3, 0.5], [-0.3, -0.5]], np.float32)
     steer = [agent.act(t[None])[0] for t in test]
     np.testing.assert_allclose(steer, [0.5, -0.5, 0.5, -0.5], atol=0.15)
+
+
+@pytest.mark.parametrize("name", ["WIN4", "LSTM4"])
+def test_q_pair_equals_two_critic_evaluations(name: str) -> None:
+    """The shared-state-path evaluation gives exactly Q(s, a) and Q(s, mu(s))."""
+    agent = DDPGAgent(get_variant(name, SMALL), D, seed=3)
+    obs = torch.randn(32, 4, D)
+    a, past = torch.rand(32, 3), torch.rand(32, 3, 3)
+    with torch.no_grad():
+        pi = agent.actor(obs)
+        q, q_pi = agent.critic.q_pair(obs, a, pi, past)
+        torch.testing.assert_close(q, agent.critic(obs, a, past))
+        torch.testing.assert_close(q_pi, agent.critic(obs, pi, past))
+
+
+def test_device_is_chosen_at_run_time() -> None:
+    from formula_tourney.agents.ddpg import resolve_device
+
+    assert resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
+    if not torch.cuda.is_available():
+        with pytest.raises(UserInputError, match="cuda"):
+            resolve_device("cuda")

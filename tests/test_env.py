@@ -1,4 +1,4 @@
-"""The Gymnasium env: API, config, reward, episode ends, laps, walls, rendering (issue 2, item 5)."""
+"""The Gymnasium env: API, config, reward, episode ends, laps, walls, rendering (issue 2, #5)."""
 
 from __future__ import annotations
 
@@ -104,7 +104,10 @@ def test_default_start_and_flying_laps_with_interpolated_timing():
     lap = laps_seen[1]
     # Flying laps of a ~1303 m loop at ~24 m/s: ~54 s, not a multiple of the 0.2 s step.
     assert 50.0 < lap < 60.0
-    assert abs(lap / 0.2 - round(lap / 0.2)) > 1e-6 or abs(laps_seen[0] / 0.01 % 1) > 1e-6
+    # Timed inside the substep: not a multiple of the 0.01 s physics step, and two laps at the
+    # driver's steady state agree to well under one substep.
+    assert abs(lap / 0.01 - round(lap / 0.01)) > 1e-3
+    assert laps_seen[0] == pytest.approx(lap, abs=1e-3)
     assert info["lap_times_s"] == laps_seen and info["best_lap_s"] == min(laps_seen)
     assert info["lap_damage"] == [0.0, 0.0] and info["damage"] == 0.0
     assert info["distance_m"] == pytest.approx(50.0 + 2 * TRACK.length_m + info["s_m"],
@@ -146,9 +149,10 @@ def test_backwards_slow_and_max_steps_ends():
     env = FormulaRacingEnv(config={"track": TRACK, "slow_patience_steps": 5,
                                    "slow_penalty": 50.0})
     env.reset(options={"start_s_m": 100.0})
-    for k in range(5):
-        _, r, term, trunc, info = env.step(np.array([0, 0, 1], np.float32))
-    assert k == 4 and term and r == -50.0 and info["termination"] == "slow"
+    ends = [env.step(np.array([0, 0, 1], np.float32))[2] for _ in range(5)]
+    assert ends == [False] * 4 + [True]
+    _, r, term, _, info = env.step(np.array([0, 0, 1], np.float32))  # still slow: ends again
+    assert term and r == -50.0 and info["termination"] == "slow"
 
     env = FormulaRacingEnv(config={"track": TRACK, "max_steps": 7, "terminate_slow": False})
     env.reset(options={"start_s_m": 100.0})
@@ -177,9 +181,8 @@ def test_wall_impulse_damage_is_proportional_to_impact_speed():
         dmg = K.wall_contact(st, b.geom, b.params, 5.0)
         assert dmg == pytest.approx(car.wall_damage_per_mps * vn, rel=1e-9)
         assert st[K.ST_LAT] == pytest.approx(11.0 - car.car_width_m / 2, abs=1e-9)
-        speed_after = math.hypot(st[K.ST_VX], st[K.ST_VY])
-        assert speed_after < math.hypot(30.0, vn) - 0.5 * vn  # friction scrubs speed
-        assert st[K.ST_VY] < 0.0  # bounced off
+        assert st[K.ST_VX] < 30.0 - 0.1 * vn  # friction along the wall scrubs speed
+        assert st[K.ST_VY] < 0.8 * vn and st[K.ST_R] < 0.0  # pushed back, turned along the wall
 
 
 def test_wall_hit_in_the_env_costs_speed_and_reward():

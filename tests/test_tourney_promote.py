@@ -81,3 +81,55 @@ def test_nobody_finishing_promotes_nobody() -> None:
     variants, rows = promote(rank_entrants(jobs("WIN1-MOT", "DDPG", [None], failed=2)),
                              Promotion())
     assert variants == [] and rows[0]["decision"] == "no clean lap"
+
+
+def test_unfinished_can_be_classified_by_distance() -> None:
+    rows = jobs("WIN1-MOT", "DDPG", [None, None]) + jobs("MS2-MOT", "MS", [None, None])
+    rows += jobs("PER1M-MOT", "PER", [31.0, None])
+    for row, dist in zip(rows, [900.0, 1100.0, 300.0, 500.0, 2300.0, 1200.0], strict=True):
+        row["test_distance_m"] = dist
+    ranking = rank_entrants(rows)
+    assert {r["entrant"]: r["distance_m"] for r in ranking}["WIN1-MOT"] == 1000.0
+    strict, _ = promote(ranking, Promotion(best_per_family=False, min_finish_rate=0.5))
+    assert strict == ["PER1M"]
+    variants, decided = promote(ranking, Promotion(best_per_family=False, top_k=2,
+                                                   unfinished="by_distance"))
+    assert variants == ["PER1M", "WIN1"]  # finishers first, then the furthest
+    decisions = {r["entrant"]: r["decision"] for r in decided}
+    assert decisions["MS2-MOT"] == "no clean lap; classified by distance 400 m; outside top 2"
+
+
+def test_general_model_is_best_on_train_track_among_checkpoints_finishing_unseen(
+    tmp_path,
+) -> None:
+    """Study 2's rule, on a tests.parquet laid out as training.loop writes it."""
+    import pandas as pd
+
+    from formula_tourney.tourney.runner import general_candidates
+
+    def row(episode: int, track: str, lap: float | None, start: float = 0.0) -> dict:
+        return {"episode": episode, "env_steps": episode * 100, "track": track,
+                "start_s_m": start, "finished": lap is not None,
+                "best_lap_s": math.nan if lap is None else lap, "laps": int(lap is not None),
+                "damage": 0.0, "reward": 0.0, "steps": 10, "termination": "max_steps",
+                "checkpoint": f"checkpoints/ep-{episode}.pt"}
+
+    rows = [
+        # episode 100: fast on the train track but does not finish 'flowing'
+        row(100, "technical", 66.0), row(100, "oval", 28.0), row(100, "flowing", None),
+        # episode 200: finishes everything, 68 s on the train track
+        row(200, "technical", 68.0), row(200, "oval", 27.5), row(200, "flowing", 80.0),
+        row(200, "flowing", None, start=1000.0),  # 1 of 2 starts: rate 0.5
+        # episode 300: finishes everything but slower
+        row(300, "technical", 70.0), row(300, "oval", 27.0), row(300, "flowing", 79.0),
+    ]
+    pd.DataFrame(rows).to_parquet(tmp_path / "tests.parquet")
+    pick = general_candidates(tmp_path, "technical", ["technical", "oval", "flowing"], 0.5)
+    assert pick == {"episode": 200, "train_track": "technical", "train_lap_s": 68.0,
+                    "laps": {"technical": 68.0, "oval": 27.5, "flowing": 80.0},
+                    "checkpoint": "checkpoints/ep-200.pt"}
+    strict = general_candidates(tmp_path, "technical", ["technical", "oval", "flowing"], 1.0)
+    assert strict is not None and strict["episode"] == 300
+    oval_pick = general_candidates(tmp_path, "oval", ["oval", "flowing"], 1.0)
+    assert oval_pick is not None and oval_pick["episode"] == 300
+    assert general_candidates(tmp_path / "missing", "oval", ["oval"], 0.5) is None

@@ -46,19 +46,36 @@ name = "p1"
 entrants = {entrants}
 train_tracks = ["oval"]
 
+{p2}"""
+
+# Two 30-step episodes (6 s of driving) cannot lap a 2.3 km oval: nobody is promoted from p1.
+PROMOTED_P2 = """
 [[parts]]
 name = "p2"
 promoted_from = "p1"
-promotion = {{ best_per_family = false, top_k = 1 }}
+promotion = { best_per_family = false, top_k = 1 }
 train_tracks = ["oval"]
+
+[[parts]]
+name = "p3"
+promoted_from = "p2"
+train_tracks = ["oval"]
+"""
+
+DECLARED_P2 = """
+[[parts]]
+name = "p2"
+entrants = ["WIN1"]
+train_tracks = ["oval"]
+baselines = [{ bot = "follower", reference = "centre", laps = 1 }]
 """
 
 REPO = Path(__file__).resolve().parents[1]
 
 
-def tiny(tmp_path: Path, entrants: str = '["WIN1", "MS2"]') -> Path:
+def tiny(tmp_path: Path, entrants: str = '["WIN1", "MS2"]', p2: str = DECLARED_P2) -> Path:
     path = tmp_path / "tiny.toml"
-    path.write_text(TINY.format(entrants=entrants), encoding="utf-8")
+    path.write_text(TINY.format(entrants=entrants, p2=p2), encoding="utf-8")
     return path
 
 
@@ -85,7 +102,7 @@ def test_failure_isolation_and_retries(tmp_path: Path, monkeypatch: pytest.Monke
     """An exception, a NaN divergence and a crashed worker each fail only their own job."""
     monkeypatch.setenv(FAULTS_ENV, json.dumps(
         {"p1/MS2-*": "raise", "p1/PER40k-*": "diverge", "p1/WIN4-*": "exit"}))
-    path = tiny(tmp_path, '["WIN1", "MS2", "PER40k", "WIN4"]')
+    path = tiny(tmp_path, '["WIN1", "MS2", "PER40k", "WIN4"]', PROMOTED_P2)
     result = run_tournament(path, workers=2, retries=1, results_dir=tmp_path / "res",
                             show_progress=False)
     jobs = rows(tmp_path / "res")
@@ -96,10 +113,16 @@ def test_failure_isolation_and_retries(tmp_path: Path, monkeypatch: pytest.Monke
     for job_id in ("p1/MS2-MOT/seed-0", "p1/PER40k-MOT/seed-0", "p1/WIN4-MOT/seed-0"):
         assert jobs[job_id]["status"] == "failed" and jobs[job_id]["attempts"] == 2
     assert (tmp_path / "res/tiny/p1/MS2-MOT/seed-0/error.txt").read_text().count("Injected")
-    # the survivor is promoted and trained in part 2
-    assert result["parts"][0]["promoted"] == {"p2": ["WIN1"]}
-    assert jobs["p2/WIN1-MOT/seed-0"]["status"] == "done"
     assert result["this_run"]["retried"] == 3 and result["this_run"]["failed"] == 3
+    # the survivor never lapped: nobody is promoted, and the parts waiting on p1 fail with why
+    parts = {p["part"]: p for p in result["parts"]}
+    assert parts["p1"]["status"] == "done" and parts["p1"]["reason"] == "3 of 4 jobs failed"
+    assert parts["p1"]["promoted"] == {"p2": []}
+    assert parts["p2"]["status"] == "failed"
+    assert parts["p2"]["reason"] == "no entrant of p1 met the promotion rule"
+    assert parts["p3"]["reason"] == "source part p2 failed"
+    decisions = {r["entrant"]: r["decision"] for r in parts["p1"]["ranking"]}
+    assert decisions["WIN1-MOT"] == "no clean lap"
 
 
 def _start_cli(tmp_path: Path, extra: list[str], env: dict[str, str]) -> subprocess.Popen:
@@ -143,7 +166,8 @@ def test_kill_9_of_a_worker_loses_nothing_and_retries(tmp_path: Path) -> None:
 
 
 def test_kill_9_of_the_parent_then_resume(tmp_path: Path) -> None:
-    proc = _start_cli(tmp_path, [], {FAULTS_ENV: json.dumps({"p1/MS2-*": "sleep:30"})})
+    proc = _start_cli(tmp_path, [], {FAULTS_ENV: json.dumps({"p*/MS2-*": "sleep:30",
+                                                             "p2/*": "sleep:30"})})
     worker = _wait_running(tmp_path / "res", "p1/MS2-MOT/seed-0", proc)
     deadline = time.monotonic() + 120  # wait until WIN1 has finished in the other worker
     while rows(tmp_path / "res")["p1/WIN1-MOT/seed-0"]["status"] != "done":
@@ -162,7 +186,7 @@ def test_kill_9_of_the_parent_then_resume(tmp_path: Path) -> None:
     assert rows(tmp_path / "res")["p1/MS2-MOT/seed-0"]["status"] == "running"
     result = run_tournament(tiny(tmp_path), workers=2, results_dir=tmp_path / "res",
                             show_progress=False)
-    assert result["this_run"]["skipped"] == 1  # WIN1 was not trained again
+    assert result["this_run"]["skipped"] == 1  # p1's WIN1 was not trained again
     jobs = rows(tmp_path / "res")
     assert jobs["p1/WIN1-MOT/seed-0"]["attempts"] == 1
     assert jobs["p1/MS2-MOT/seed-0"]["attempts"] == 2
@@ -174,14 +198,15 @@ def test_kill_9_of_the_parent_then_resume(tmp_path: Path) -> None:
     again = run_tournament(tiny(tmp_path), workers=2, results_dir=tmp_path / "res",
                            show_progress=False)
     assert again["this_run"]["done"] == 0 and again["this_run"]["skipped"] == 3
+    base = store.baselines()
+    assert list(base["status"]) == ["done"] and base["reference_limit_s"].iloc[0] > 10.0
 
 
 @pytest.mark.ray
 def test_ray_local_run(tmp_path: Path) -> None:
     pytest.importorskip("ray")
     path = tmp_path / "tiny.toml"
-    path.write_text(TINY.format(entrants='["WIN1"]').split("[[parts]]\nname = \"p2\"")[0],
-                    encoding="utf-8")
+    path.write_text(TINY.format(entrants='["WIN1"]', p2=""), encoding="utf-8")
     result = run_tournament(path, workers=1, executor="ray", results_dir=tmp_path / "res",
                             show_progress=False)
     jobs = rows(tmp_path / "res")

@@ -97,6 +97,26 @@ class MLPCritic(nn.Module):
         h = torch.relu_(torch.addmm(self.l2(h), action, self.l2_action.weight.t()))
         return self.out(h).squeeze(1)
 
+    def q_pair(
+        self,
+        obs_window: torch.Tensor,
+        action: torch.Tensor,
+        policy_action: torch.Tensor,
+        past_actions: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(Q(s, a), Q(s, mu(s)))`` sharing the state path ``W2h relu(W1 s)``.
+
+        Only the action columns and the last layer are evaluated twice: the actor's pass through
+        the critic costs ~1% instead of ~20% of an update's FLOPs. The second value is detached
+        from the state path, so the actor loss reaches the actor through the action alone.
+        """
+        h = torch.relu_(self.l1(obs_window[:, -self.window :].flatten(1)))
+        base = self.l2(h)
+        w_a = self.l2_action.weight.t()
+        q = self.out(torch.relu_(torch.addmm(base, action, w_a))).squeeze(1)
+        q_pi = self.out(torch.relu_(torch.addmm(base.detach(), policy_action, w_a))).squeeze(1)
+        return q, q_pi
+
 
 class LSTMCritic(nn.Module):
     """Q over a window: per step [relu(W s_k), a_k] -> LSTM -> last output -> MLP head -> Q.
@@ -131,12 +151,33 @@ class LSTMCritic(nn.Module):
         past_actions: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Q values ``(B,)`` of taking ``action`` after the window's ``w-1`` ``past_actions``."""
-        obs_window = obs_window[:, -self.window :]
+        stream = torch.relu(self.state(obs_window[:, -self.window :]))
+        return self._q_from_stream(stream, self._action_seq(action, past_actions, stream))
+
+    def _action_seq(
+        self, action: torch.Tensor, past_actions: torch.Tensor | None, stream: torch.Tensor
+    ) -> torch.Tensor:
+        """The window's actions: ``w-1`` past ones from the buffer, then ``action``."""
         if past_actions is None or past_actions.shape[1] == 0:
-            actions = action[:, None, :].expand(-1, obs_window.shape[1], -1)
-        else:
-            actions = torch.cat([past_actions[:, -(self.window - 1) :], action[:, None, :]], 1)
-        x = torch.cat([torch.relu(self.state(obs_window)), actions], dim=2)
-        seq, _ = self.lstm(x)
-        h = torch.relu(self.head(seq[:, -1]))
-        return self.out(h).squeeze(1)
+            return action[:, None, :].expand(-1, stream.shape[1], -1)
+        return torch.cat([past_actions[:, -(self.window - 1) :], action[:, None, :]], 1)
+
+    def _q_from_stream(self, stream: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        seq, _ = self.lstm(torch.cat([stream, actions], dim=2))
+        return self.out(torch.relu(self.head(seq[:, -1]))).squeeze(1)
+
+    def q_pair(
+        self,
+        obs_window: torch.Tensor,
+        action: torch.Tensor,
+        policy_action: torch.Tensor,
+        past_actions: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(Q(s, a), Q(s, mu(s)))``: one state stream, both sequences in one 2B-row LSTM call
+        (bigger GEMMs run faster than two half-size ones)."""
+        stream = torch.relu(self.state(obs_window[:, -self.window :]))
+        both = torch.cat([stream, stream.detach()], dim=0)
+        actions = torch.cat([self._action_seq(action, past_actions, stream),
+                             self._action_seq(policy_action, past_actions, stream)], 0)  # fmt: skip
+        q, q_pi = self._q_from_stream(both, actions).chunk(2)
+        return q, q_pi

@@ -1,18 +1,19 @@
 """The follower bot, our "Tita": drives any line with a speed profile and a steering controller.
 
 Speed: the target at each point is the line's quasi-steady-state (QSS) speed for our car times
-``speed_factor``; the demand is the acceleration that reaches the target at the place the car
-will be one control step later (the action is held for 200 ms, 3-16 m of track), turned into
-throttle or brake through the car's own force model, and capped so that the tyres keep grip
-for cornering (the simulator clips longitudinal force first and the lateral force shrinks on the
-friction ellipse, so a full pedal mid-corner would spin or plough the car).
+``speed_factor``, planned with a braking reserve; the demand is the acceleration that reaches
+the target at the place the car will be one control step later (the action is held for
+200 ms, 3-16 m of track), turned into throttle or brake through the car's own force model and
+capped so the tyres keep grip for cornering (the simulator clips longitudinal force first and
+the lateral force shrinks on the friction ellipse, so a full pedal mid-corner spins or
+ploughs the car).
 
 Steering: a curvature command ``k_line + e/L^2 + 2 zeta de/ds / L`` (a second-order lateral
-error law in distance, preview length ``L`` growing with speed), on the pose predicted half a
-control step ahead, converted to a wheel angle with the kinematic bicycle plus the car's linear
-understeer gradient, plus yaw damping on the difference between commanded and measured yaw
-rate. Pure pursuit was the first choice, but on a 15 m hairpin its steady-state corner cutting
-(about ``L^2 / 2R``) is metres; the feed-forward curvature removes it.
+error law in distance, preview ``L`` growing with speed) plus yaw damping, on the pose
+predicted half a control step ahead, turned into a wheel angle through the tyres' slip angles
+(``wheelbase k + alpha_f - alpha_r``, Fiala curve inverted) with counter-steer on the rear's
+excess slip. Pure pursuit was the first choice, but on a 15 m hairpin its steady-state corner
+cutting (about ``L^2 / 2R``) is metres; docs/lines.md lists what else was tried and why.
 
 ``drive`` runs laps through ``FormulaRacingEnv`` and returns lap times, damage and a per-step
 trace (the recorded line is made from it).
@@ -34,11 +35,12 @@ from formula_tourney.sim.track import Track
 
 @dataclass(frozen=True)
 class FollowerConfig:
-    """Tuning of the follower. Defaults were tuned on oval/technical/flowing and gen tracks."""
+    """Tuning of the follower. Defaults were tuned on 13 test tracks (docs/lines.md): every
+    drive clean, 9% mean gap to the reference limit on the min-curvature line."""
 
-    speed_factor: float = 0.96
-    """Share of the QSS speed driven: the margin for what the QSS model leaves out (load
-    transfer, the tyre curve's falling side, 200 ms control)."""
+    speed_factor: float = 0.97
+    """Share of the QSS corner speeds planned for: the margin for what the QSS model leaves
+    out (load transfer, the tyre curve's falling side, 200 ms control)."""
     preview_time_s: float = 0.6
     """Preview length of the lateral error law per m/s of speed."""
     min_preview_m: float = 8.0
@@ -49,8 +51,15 @@ class FollowerConfig:
     """Share of the yaw-rate error (commanded minus measured) added to the curvature command:
     damps the heading and catches the rear when it steps out."""
     slip_steering: bool = True
-    """Steer by the front axle's velocity and the wanted front slip angle (else kinematic
-    bicycle plus understeer gradient)."""
+    """Wheel angle from the Fiala slip angles of both axles (else kinematic bicycle plus the
+    linear understeer gradient, which spun the car braking into corners)."""
+    steer_smoothing: float = 0.3
+    """Weight of the previous steering command in the new one: damps the left-right chatter
+    that the 200 ms hold excites at 50-60 m/s (0.5 would null it but lags in hairpins)."""
+    countersteer_gain: float = 1.0
+    """Wheel angle per radian of rear slip beyond the wanted one (catches the rear)."""
+    front_force_share: float = 0.9
+    """Largest share of an axle's grip the steering law asks for."""
     understeer_gain: float = 1.0
     """Share of the car's linear understeer gradient added as feed-forward wheel angle."""
     curvature_preview_s: float = 0.15
@@ -63,10 +72,13 @@ class FollowerConfig:
     traction_transfer: float = 1.0
     """Share of the longitudinal load transfer to the rear counted on for traction (1 = the
     QSS forward pass's rule)."""
+    brake_plan: float = 0.95
+    """Share of the car's braking the speed plan counts on: the reserve catches a car that
+    arrives a little fast (which then corners harder and can brake less)."""
     brake_lateral_cutoff: float = 0.0
-    """Braking fades to zero as cornering uses this share of grip: the simulated car turns
-    unstable (the rear axle loses load and grip) when it brakes hard in a corner, so the bot
-    brakes in a straight line and plans its speed profile with that rule."""
+    """If > 0, braking fades to zero as cornering uses this share of grip (plan and pedal).
+    Needed with the kinematic steering law; with slip steering (default) 0 was 4-7% faster
+    and as safe."""
     control_period_s: float = 0.2
     """Matches the env's control period (the pose is predicted half of it ahead)."""
 
@@ -112,10 +124,16 @@ class Follower:
         self.line = ReferenceLine.from_offsets(self.track, offsets)
         self.profile = speed_profile(self.track, offsets, self.car)
         model = replace(CarModel.from_car(self.car),
-                        brake_lateral_cutoff=self.config.brake_lateral_cutoff)
+                        brake_lateral_cutoff=self.config.brake_lateral_cutoff,
+                        brake_scale=self.config.brake_plan,
+                        corner_speed_scale=self.config.speed_factor)
+        # The margin is on corner speeds only: scaling the whole profile also capped the car
+        # at 97% of its speed on every straight, where nothing is at risk (measured: 2/3 of the
+        # gap to the limit was lost while accelerating).
         self.plan = speed_profile(self.track, offsets, self.car, model)
-        self.target_mps = self.config.speed_factor * self.plan.speed_mps
+        self.target_mps = self.plan.speed_mps
         self._hint = -1
+        self._last_steer = 0.0
         c = self.car
         wb = c.wheelbase_m
         # Linear understeer gradient (rad per m/s^2 of lateral acceleration).
@@ -128,6 +146,7 @@ class Follower:
 
     def reset(self) -> None:
         self._hint = -1
+        self._last_steer = 0.0
 
     def _drive_force(self, v: float) -> float:
         return float(np.interp(v, np.arange(0.0, 160.0, 0.5), self._drive_grid))
@@ -145,25 +164,30 @@ class Follower:
         return self._interp(self.target_mps, s_m)
 
     def _slip_wheel_angle(self, st: CarState, v: float, k_total: float) -> float:
-        """Wheel angle = direction of the front axle's velocity + the slip angle that makes the
-        front tyres' share of the wanted lateral force (Fiala curve inverted in closed form).
+        """Wheel angle from the tyres' slip angles: ``wheelbase k + alpha_f - alpha_r`` for the
+        front and rear shares of the wanted lateral force (Fiala curve inverted in closed form,
+        load and downforce included), plus counter-steer on the rear's measured excess slip.
 
-        Steering relative to the front axle's own velocity counter-steers by itself when the
-        rear slides out, which the kinematic law cannot do.
+        The linear understeer gradient is this law's small-slip limit; near the grip limit the
+        Fiala inverse asks for the larger angles the tyres really need. Feeding the measured
+        side slip back in full (steering along the front axle's velocity) chattered left-right
+        on 55 m/s straights through the 200 ms hold (measured): only the rear's excess slip is
+        fed back, with ``countersteer_gain``.
         """
-        c = self.car
+        c, cfg = self.car, self.config
         wb, lf, lr = c.wheelbase_m, c.cg_to_front_m, c.cg_to_rear_m
-        beta_front = math.atan2(st.vy_mps + lf * st.yaw_rate_radps, max(st.vx_mps, 1.0))
         normal = c.mass_kg * GRAVITY_MPS2 + c.downforce_coef_n_per_mps2 * v * v
-        fz_front = normal * lr / wb
-        stiffness = c.cornering_stiffness_front_n_per_rad * normal / (c.mass_kg * GRAVITY_MPS2)
-        f_max = c.mu * fz_front
-        force = c.mass_kg * v * v * k_total * lr / wb
-        ratio = min(abs(force) / f_max, 0.98)
-        # Fiala: F / Fmax = 1 - (1 - u)^3 with u = C tan(alpha) / (3 Fmax).
-        u = 1.0 - (1.0 - ratio) ** (1.0 / 3.0)
-        alpha = math.atan(3.0 * f_max * u / stiffness)
-        return beta_front + math.copysign(alpha, force)
+        load = normal / (c.mass_kg * GRAVITY_MPS2)
+        lateral = c.mass_kg * v * v * k_total
+        alpha_f = _fiala_slip(lateral * lr / wb, c.mu * normal * lr / wb,
+                              c.cornering_stiffness_front_n_per_rad * load,
+                              cfg.front_force_share)
+        alpha_r = _fiala_slip(lateral * lf / wb, c.mu * normal * lf / wb,
+                              c.cornering_stiffness_rear_n_per_rad * load,
+                              cfg.front_force_share)
+        wheel = math.atan(wb * k_total) + alpha_f - alpha_r
+        rear_slip = -math.atan2(st.vy_mps - lr * st.yaw_rate_radps, max(st.vx_mps, 1.0))
+        return wheel + cfg.countersteer_gain * (alpha_r - rear_slip)
 
     def act(self, st: CarState) -> tuple[float, float, float]:
         cfg, c, t = self.config, self.car, self.track
@@ -201,6 +225,13 @@ class Follower:
             wheel = (math.atan(c.wheelbase_m * k_total)
                      + cfg.understeer_gain * self._understeer * load * v * v * k_cmd)
         steer = max(-1.0, min(1.0, wheel / c.max_steer_rad))
+        # Blend with the previous command: at 50-60 m/s the car's side slip answers a wheel
+        # angle within one 200 ms hold, and the laws above then over-correct every step (a
+        # left-right chatter that grew until the car left the track, measured). An equal
+        # blend has zero gain at that period-2 frequency.
+        lam = cfg.steer_smoothing
+        steer = (1.0 - lam) * steer + lam * self._last_steer
+        self._last_steer = steer
 
         # --- speed --------------------------------------------------------------------------
         dt = cfg.control_period_s
@@ -216,8 +247,7 @@ class Follower:
         k_ahead = max(abs(self._interp(self.line.curvature_1pm, p_s))
                       for p_s in (s, s + 0.5 * v * cfg.control_period_s,
                                   s + v * cfg.control_period_s))
-        lat_force = c.mass_kg * max(abs(speed * st.yaw_rate_radps), v * v * abs(k_cmd),
-                                    v * v * k_ahead)
+        lat_force = c.mass_kg * max(v * v * abs(k_cmd), v * v * k_ahead)
         grip = cfg.grip_use * c.mu * normal
         throttle = brake = 0.0
         if a_req >= 0.0:
@@ -231,11 +261,26 @@ class Follower:
             full = self._drive_force(speed)
             throttle = max(0.0, min(1.0, force / max(full, 1.0)))
         else:
-            cap = brake_force_limit_n(c, speed, lat_force, cfg.grip_use,
-                                      cfg.brake_lateral_cutoff)
+            # Cap by the cornering happening now, not the one ahead: a car arriving too fast
+            # must still brake (it would otherwise give up braking exactly when it must).
+            # The line's curvature, not the measured yaw rate: a wobble on a straight read as
+            # cornering and held the brakes off until a hairpin was out of reach (measured).
+            lat_now = c.mass_kg * v * v * abs(k_line)
+            cap = brake_force_limit_n(c, speed, lat_now, cfg.grip_use, cfg.brake_lateral_cutoff)
             force = min(c.mass_kg * -a_req - resist, cap)
             brake = max(0.0, min(1.0, force / c.max_brake_force_n))
         return steer, throttle, brake
+
+
+def _fiala_slip(force_n: float, f_max_n: float, stiffness: float, max_share: float) -> float:
+    """Slip angle at which a Fiala tyre gives ``force_n``: ``F/Fmax = 1 - (1 - u)^3`` with
+    ``u = C tan(alpha) / (3 Fmax)``. The asked share is capped: near the peak the inverse is
+    steep (2% more force, twice the slip), which would make the steering loop's gain explode."""
+    if f_max_n <= 0.0:
+        return 0.0
+    ratio = min(abs(force_n) / f_max_n, max_share)
+    u = 1.0 - (1.0 - ratio) ** (1.0 / 3.0)
+    return math.copysign(math.atan(3.0 * f_max_n * u / stiffness), force_n)
 
 
 def _car_state(env) -> CarState:

@@ -10,7 +10,7 @@ freezing the first derivatives, which converges in a handful of iterations.
 
 Measured trade-offs (DESIGN.md, issue 3): a dense QP of ~900 points solves in ~0.4 s with
 quadprog on one thread (OSQP took ~7 s on 500 points; scipy's lsq_linear was off by metres), so
-the QP runs on every k-th track sample (spacing >= 2 m, at most ``MAX_QP_POINTS`` points). The
+the QP runs on every k-th track sample (spacing >= 3 m, at most ``MAX_QP_POINTS`` points). The
 fine line is then a periodic C2 spline *through the optimal points* intersected with every
 track normal; splining the offsets instead would carry the centreline's curvature jumps at
 straight/arc joins into the line, and clipping offsets would add kinks.
@@ -28,13 +28,16 @@ from scipy.interpolate import CubicSpline
 from formula_tourney.errors import UserInputError
 from formula_tourney.sim.track import Track
 
-DEFAULT_MARGIN_M = 1.5
-"""Kept free on each side: half the car (0.95 m) plus room for the follower's tracking error."""
+DEFAULT_MARGIN_M = 2.0
+"""Kept free on each side: half the car (0.95 m) plus room for the follower's tracking error
+(with 1.5 m it left the asphalt once in 26 test drives, running 1.6 m wide out of a hairpin)."""
 
-MAX_QP_POINTS = 900
-"""quadprog is O(n^3): 900 points ~0.4 s per iteration here, 1200 points ~1.3 s."""
+MAX_QP_POINTS = 600
+"""quadprog is O(n^3): 600 points ~0.15 s per iteration here, 1200 points ~1.3 s (and up to
+18 s for a whole solve). On a 2.2 km technical track 279, 446 and 743 points gave QSS laps
+within 0.1% of each other, so resolution beyond ~8 m buys nothing."""
 
-MIN_QP_SPACING_M = 2.0
+MIN_QP_SPACING_M = 3.0
 
 
 @dataclass

@@ -55,6 +55,11 @@ class CarModel:
     max_brake_force_n: float
     brake_bias_front: float
     drive_force_grid_n: np.ndarray
+    brake_scale: float = 1.0
+    """1 for the physical limit; a driver keeping a braking reserve plans with less."""
+    corner_speed_scale: float = 1.0
+    """1 for the physical limit; a driver keeping a cornering reserve plans with less (only
+    the corner speeds shrink: acceleration and braking between them stay full)."""
     brake_lateral_cutoff: float = 0.0
     """0 for the physical limit. A driver that may brake only while cornering lightly (the
     follower: the simulated car turns unstable when it brakes hard in a corner) sets the share
@@ -134,7 +139,8 @@ def corner_speed_mps(curvature_1pm: np.ndarray | float, car: CarParams) -> np.nd
 
 
 @numba.njit(cache=True)
-def _net_accel(v, k, sign, m, mu, cl, cd, crr, lf, wb, h, brake_max, bias, cutoff, grid, step):
+def _net_accel(v, k, sign, m, mu, cl, cd, crr, lf, wb, h, brake_max, bias, cutoff, scale, grid,
+               step):
     """Longitudinal acceleration: sign=+1 full throttle, sign=-1 full brake (as a deceleration).
 
     Rear-wheel drive: the drive force is also capped by the rear axle's grip, whose load grows
@@ -169,7 +175,7 @@ def _net_accel(v, k, sign, m, mu, cl, cd, crr, lf, wb, h, brake_max, bias, cutof
     front_den = bias * wb - mu * h
     front = mu * (normal * lr + resist * h) / front_den if front_den > 0.0 else brake_max
     rear = mu * (normal * lf - resist * h) / ((1.0 - bias) * wb + mu * h)
-    force = min(brake_max, rem, ellipse * min(front, rear))
+    force = scale * min(brake_max, rem, ellipse * min(front, rear))
     if cutoff > 0.0 and grip > 0.0:
         force *= max(0.0, 1.0 - lateral / grip / cutoff)
     return (force + resist) / m
@@ -177,7 +183,7 @@ def _net_accel(v, k, sign, m, mu, cl, cd, crr, lf, wb, h, brake_max, bias, cutof
 
 @numba.njit(cache=True)
 def _pass(ds, kappa, vmax, forward, closed, v_start, m, mu, cl, cd, crr, lf, wb, h, brake_max,
-          bias, cutoff, grid, step):
+          bias, cutoff, scale, grid, step):
     """One direction of the QSS method; two laps when closed so the start is consistent."""
     n = ds.shape[0]
     out = np.empty(n)
@@ -212,10 +218,10 @@ def _pass(ds, kappa, vmax, forward, closed, v_start, m, mu, cl, cd, crr, lf, wb,
         # Heun's method on u = v^2 (du/ds = 2a): exact for constant acceleration and
         # second-order accurate with drag, which the closed-form tests check.
         a0 = _net_accel(v, kappa[i], sign, m, mu, cl, cd, crr, lf, wb, h, brake_max, bias, cutoff,
-                        grid, step)
+                        scale, grid, step)
         u_pred = max(v * v + 2.0 * a0 * seg, 0.0)
         a1 = _net_accel(math.sqrt(u_pred), kappa[nxt], sign, m, mu, cl, cd, crr, lf, wb, h,
-                        brake_max, bias, cutoff, grid, step)
+                        brake_max, bias, cutoff, scale, grid, step)
         u_new = max(v * v + (a0 + a1) * seg, 0.0)
         v = min(math.sqrt(u_new), vmax[nxt])
     return out
@@ -228,6 +234,7 @@ def _run_pass(model: CarModel, ds, kappa, vmax, forward: bool, closed: bool, v_s
         model.mass_kg, model.mu, model.downforce_coef, model.drag_coef,
         model.rolling_resistance, model.cg_to_front_m, model.wheelbase_m, model.cg_height_m,
         model.max_brake_force_n, model.brake_bias_front, model.brake_lateral_cutoff,
+        model.brake_scale,
         model.drive_force_grid_n, _DRIVE_GRID_STEP_MPS,
     )
 
@@ -250,7 +257,7 @@ def profile_from_geometry(
         raise UserInputError("a speed profile needs matching 1-D arrays of >= 3 samples")
     if not (np.all(np.isfinite(ds)) and np.all(ds > 0) and np.all(np.isfinite(kappa))):
         raise UserInputError("a speed profile needs positive finite spacing and finite curvature")
-    vmax = corner_speed_mps(kappa, car)
+    vmax = corner_speed_mps(kappa, car) * model.corner_speed_scale
     v_fwd = _run_pass(model, ds, kappa, vmax, True, True, 0.0)
     v_bwd = _run_pass(model, ds, kappa, vmax, False, True, 0.0)
     speed = np.minimum(np.minimum(v_fwd, v_bwd), vmax)

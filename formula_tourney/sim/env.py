@@ -7,11 +7,13 @@ reads. Measured figures and the reasons for this shape are in ``docs/sim.md``.
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Mapping
 from typing import Any
 
 import gymnasium
+import numba
 import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
@@ -129,7 +131,11 @@ def resolve_config(config: Mapping[str, Any] | None) -> dict[str, Any]:
 class _Batch:
     """N cars on one track: config, compiled-kernel arrays and per-car episode bookkeeping."""
 
-    def __init__(self, n: int, config: Mapping[str, Any] | None):
+    def __init__(self, n: int, config: Mapping[str, Any] | None, threads: int = 1):
+        most = numba.config.NUMBA_NUM_THREADS
+        if not isinstance(threads, (int, np.integer)) or not 1 <= threads <= most:
+            raise UserInputError(f"threads: expected 1..{most}, got {threads!r}")
+        self.threads = int(threads)
         cfg = resolve_config(config)
         self.config = cfg
         self.track = self._load_track(cfg["track"])
@@ -180,11 +186,21 @@ class _Batch:
         self.integrate = np.zeros(n, dtype=np.uint8)
         self.obs = np.zeros((n, n_obs), dtype=np.float32)
         self.out = np.zeros((n, K.N_OUT))
-        self.lap_times: list[list[float]] = [[] for _ in range(n)]
-        self.lap_damage: list[list[float]] = [[] for _ in range(n)]
+        # Per-car bookkeeping as object/float arrays: the vector env's info copies them whole.
+        self.lap_times = np.empty(n, dtype=object)
+        self.lap_damage = np.empty(n, dtype=object)
+        self.termination = np.full(n, None, dtype=object)
+        for c in range(n):
+            self.lap_times[c] = []
+            self.lap_damage[c] = []
         self.lap_start_damage = np.zeros(n)
         self.best_lap = np.full(n, np.nan)
-        self.termination: list[str | None] = [None] * n
+        self.last_lap = np.full(n, np.nan)
+        self.laps = np.zeros(n, dtype=np.int64)
+        self._s_list = self.track.s_m.tolist()
+        self._ref_x = self.reference.x_m.tolist()
+        self._ref_y = self.reference.y_m.tolist()
+        self._ref_h = self.reference.heading_rad.tolist()
 
     @staticmethod
     def _load_track(spec: Any) -> Track:
@@ -224,26 +240,33 @@ class _Batch:
             raise UserInputError(f"config key 'car': expected a dict, got {spec!r}")
         return dict(spec)
 
-    def start_pose(self, s_m: float) -> tuple[float, float, float]:
-        """Point and heading of the reference line at track position ``s_m``."""
-        tr, ref = self.track, self.reference
+    def start_pose(self, s_m: float) -> tuple[float, float, float, int]:
+        """Point, heading and sample index of the reference line at track position ``s_m``.
+
+        Plain Python on cached lists: with random actions a vector env resets a few cars every
+        step, and NumPy calls on scalars cost microseconds each.
+        """
+        tr = self.track
         s = float(s_m) % tr.length_m
-        i = int(tr.index_at(s))
-        j = (i + 1) % tr.n
-        s_next = tr.s_m[j] if j else tr.length_m
-        t = (s - tr.s_m[i]) / max(s_next - tr.s_m[i], 1e-12)
-        x = ref.x_m[i] + t * (ref.x_m[j] - ref.x_m[i])
-        y = ref.y_m[i] + t * (ref.y_m[j] - ref.y_m[i])
-        dh = math.remainder(ref.heading_rad[j] - ref.heading_rad[i], 2 * math.pi)
-        return float(x), float(y), float(ref.heading_rad[i] + t * dh)
+        s_list = self._s_list
+        i = min(max(bisect.bisect_right(s_list, s) - 1, 0), tr.n - 1)
+        j = i + 1 if i + 1 < tr.n else 0
+        s_next = s_list[j] if j else tr.length_m
+        t = (s - s_list[i]) / max(s_next - s_list[i], 1e-12)
+        rx, ry, rh = self._ref_x, self._ref_y, self._ref_h
+        x = rx[i] + t * (rx[j] - rx[i])
+        y = ry[i] + t * (ry[j] - ry[i])
+        dh = math.remainder(rh[j] - rh[i], 2 * math.pi)
+        return x, y, rh[i] + t * dh, i
 
     def reset_car(self, c: int, rng: np.random.Generator, options: Mapping | None) -> None:
         """Place car ``c`` for a new episode; the next kernel call only observes it."""
-        opts = dict(options or {})
-        unknown = sorted(set(opts) - {"start_s_m", "start_speed_mps"})
-        if unknown:
-            raise UserInputError(f"reset options: unknown key(s) {unknown}; known: "
-                                 "start_s_m, start_speed_mps")
+        if options:
+            unknown = sorted(set(options) - {"start_s_m", "start_speed_mps"})
+            if unknown:
+                raise UserInputError(f"reset options: unknown key(s) {unknown}; known: "
+                                     "start_s_m, start_speed_mps")
+        opts = options or {}
         if "start_s_m" in opts:
             s = _num(opts, "start_s_m")
         elif self.random_start:
@@ -252,22 +275,34 @@ class _Batch:
             s = self.track.length_m - DEFAULT_START_BEFORE_LINE_M
         speed = _num(opts, "start_speed_mps", 0.0, 100.0) if "start_speed_mps" in opts \
             else self.start_speed
-        x, y, h = self.start_pose(s)
+        x, y, h, i = self.start_pose(s)
         set_start(self.state[c], self.car, x, y, h, speed)
+        self.state[c, K.ST_IDX] = i  # projection hint: a local search, not a global scan
         self.integrate[c] = 0
         self.lap_times[c] = []
         self.lap_damage[c] = []
         self.lap_start_damage[c] = 0.0
         self.best_lap[c] = np.nan
+        self.last_lap[c] = np.nan
+        self.laps[c] = 0
         self.termination[c] = None
 
     def run(self) -> None:
         """One compiled call: every car with ``integrate`` set advances one control period."""
-        K.step_cars(self.state, self.actions, self.integrate, self.params, self.torque,
-                    self.gears, self.geom, self.cfg, self.lac_d, self.obs, self.out)
+        if self.threads > 1:
+            numba.set_num_threads(self.threads)
+            K.step_cars_parallel(self.state, self.actions, self.integrate, self.params,
+                                 self.torque, self.gears, self.geom, self.cfg, self.lac_d,
+                                 self.obs, self.out)
+        else:
+            K.step_cars(self.state, self.actions, self.integrate, self.params, self.torque,
+                        self.gears, self.geom, self.cfg, self.lac_d, self.obs, self.out)
 
     def record_lap(self, c: int, lap_time_s: float) -> None:
         dmg = float(self.state[c, K.ST_DAMAGE])
+        self.last_lap[c] = lap_time_s
+        self.laps[c] += 1
+        # New list objects, so an info dict handed out earlier keeps its own laps.
         self.lap_times[c] = self.lap_times[c] + [lap_time_s]
         self.lap_damage[c] = self.lap_damage[c] + [dmg - self.lap_start_damage[c]]
         self.lap_start_damage[c] = dmg
@@ -418,14 +453,15 @@ class FormulaRacingVectorEnv(VectorEnv):
     Gymnasium's next-step autoreset: the step after a car's episode ended resets that car (its
     action is ignored), returning its first observation with reward 0 and both flags false.
     ``info`` holds arrays over cars (``_key`` masks all true); see ``FormulaRacingEnv`` for
-    the spaces, reward and ends.
+    the spaces, reward and ends. ``threads > 1`` spreads the cars over that many numba threads
+    (sets numba's thread count for the process); the default, 1, suits a worker per core.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 5,
                 "autoreset_mode": AutoresetMode.NEXT_STEP}
 
     def __init__(self, num_envs: int = 1, config: Mapping[str, Any] | None = None,
-                 render_mode: str | None = None, **kwargs: Any):
+                 render_mode: str | None = None, threads: int = 1, **kwargs: Any):
         if kwargs:
             raise UserInputError(f"FormulaRacingVectorEnv: unknown argument(s) {sorted(kwargs)}")
         if not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
@@ -434,7 +470,7 @@ class FormulaRacingVectorEnv(VectorEnv):
             raise UserInputError(f"render_mode {render_mode!r}: only 'rgb_array' is supported")
         self.render_mode = render_mode
         self.num_envs = int(num_envs)
-        self._b = _Batch(self.num_envs, config)
+        self._b = _Batch(self.num_envs, config, threads)
         self.config = self._b.config
         self.track = self._b.track
         self.car = self._b.car
@@ -486,29 +522,19 @@ class FormulaRacingVectorEnv(VectorEnv):
     def _infos(self) -> dict[str, Any]:
         b = self._b
         st = b.state
-        lap_times = np.empty(self.num_envs, dtype=object)
-        lap_damage = np.empty(self.num_envs, dtype=object)
-        termination = np.empty(self.num_envs, dtype=object)
-        last = np.full(self.num_envs, np.nan)
-        for c in range(self.num_envs):
-            lap_times[c] = b.lap_times[c]
-            lap_damage[c] = b.lap_damage[c]
-            termination[c] = b.termination[c]
-            if b.lap_times[c]:
-                last[c] = b.lap_times[c][-1]
         info = {
-            "lap_times_s": lap_times,
-            "lap_damage": lap_damage,
-            "last_lap_s": last,
+            "lap_times_s": b.lap_times.copy(),
+            "lap_damage": b.lap_damage.copy(),
+            "last_lap_s": b.last_lap.copy(),
             "best_lap_s": b.best_lap.copy(),
-            "laps": np.array([len(t) for t in b.lap_times]),
+            "laps": b.laps.copy(),
             "damage": st[:, K.ST_DAMAGE].copy(),
             "distance_m": st[:, K.ST_DIST].copy(),
             "s_m": st[:, K.ST_S].copy(),
             "lateral_m": st[:, K.ST_LAT].copy(),
             "speed_mps": np.hypot(st[:, K.ST_VX], st[:, K.ST_VY]),
             "off_track": st[:, K.ST_OFF] > 0.5,
-            "termination": termination,
+            "termination": b.termination.copy(),
         }
         for key in list(info):
             info["_" + key] = self._mask

@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 # --- state columns -----------------------------------------------------------------------------
 ST_X = 0  # world x of the centre of gravity, m
@@ -103,7 +103,12 @@ G_RY = 9
 G_REF_OFF = 10  # reference line: lateral offset, heading, curvature
 G_REF_H = 11
 G_REF_K = 12
-N_GEOM = 13
+G_RUN = 13  # last sample of the straight run of edges that starts here (== index if none)
+G_DX = 14  # segment to the next sample: x and y extent, 1 / length^2, arc length
+G_DY = 15
+G_INV2 = 16
+G_SLEN = 17
+N_GEOM = 18
 
 # --- configuration -----------------------------------------------------------------------------
 C_DT = 0  # control period, s
@@ -207,17 +212,12 @@ def engine_torque(rpm: float, table: np.ndarray, redline: float) -> float:
 
 @njit(cache=True, inline="always")
 def _seg_dist2(geom: np.ndarray, i: int, x: float, y: float):
-    n = geom.shape[0]
-    j = i + 1 if i + 1 < n else 0
+    """Squared distance from a point to segment ``i`` and the clipped segment parameter."""
     ax = geom[i, G_X]
     ay = geom[i, G_Y]
-    dx = geom[j, G_X] - ax
-    dy = geom[j, G_Y] - ay
-    seg2 = dx * dx + dy * dy
-    if seg2 < 1e-12:
-        seg2 = 1e-12
-    t = ((x - ax) * dx + (y - ay) * dy) / seg2
-    t = _clip(t, 0.0, 1.0)
+    dx = geom[i, G_DX]
+    dy = geom[i, G_DY]
+    t = _clip(((x - ax) * dx + (y - ay) * dy) * geom[i, G_INV2], 0.0, 1.0)
     px = ax + t * dx - x
     py = ay + t * dy - y
     return px * px + py * py, t
@@ -253,14 +253,10 @@ def project(geom: np.ndarray, length: float, x: float, y: float, hint: int):
             i, d2, t = im, dp, tp
             continue
         break
-    j = i + 1 if i + 1 < n else 0
-    s_next = geom[j, G_S] if j > 0 else length
-    s = geom[i, G_S] + t * (s_next - geom[i, G_S])
+    s = geom[i, G_S] + t * geom[i, G_SLEN]
     if s >= length:
         s -= length
-    dx = geom[j, G_X] - geom[i, G_X]
-    dy = geom[j, G_Y] - geom[i, G_Y]
-    cross = dx * (y - geom[i, G_Y]) - dy * (x - geom[i, G_X])
+    cross = geom[i, G_DX] * (y - geom[i, G_Y]) - geom[i, G_DY] * (x - geom[i, G_X])
     lat = math.sqrt(d2)
     if cross < 0.0:
         lat = -lat
@@ -306,7 +302,7 @@ def cast_ray(geom: np.ndarray, idx: int, ox: float, oy: float, ang: float, max_r
     cross-section, and (quads being convex) leaves through the next cross-section exactly when
     that section's two ends lie on opposite sides of the ray's line; otherwise through the side
     edge whose ends straddle the line, the only exact intersection computed. Two cross products
-    per quad: walking a 200 m straight costs ~200 of them instead of ~800 intersections.
+    per quad, and a straight run of quads (``G_RUN``) is crossed as one.
     """
     n = geom.shape[0]
     dx = math.cos(ang)
@@ -346,7 +342,11 @@ def cast_ray(geom: np.ndarray, idx: int, ox: float, oy: float, ang: float, max_r
     s_l = _side(ox, oy, dx, dy, geom[k, G_LX], geom[k, G_LY])
     for _ in range(n):
         k2 = k + step
-        if k2 >= n:
+        if step == 1 and geom[k, G_RUN] > k2:
+            # Both edges run straight to sample G_RUN: treat the run as one (convex) quad, so a
+            # ray along a straight costs one test instead of one per metre.
+            k2 = int(geom[k, G_RUN])
+        elif k2 >= n:
             k2 = 0
         elif k2 < 0:
             k2 = n - 1
@@ -382,11 +382,11 @@ def physics_substep(st: np.ndarray, steer: float, cd: float, sd: float, throttle
     Tyres: Fiala lateral force per wheel on its own load (static + aero + load transfer from the
     last accelerations); the axle cornering stiffnesses hold at static load and scale with load,
     so the slip angle of peak grip stays put as downforce grows. Longitudinal force = drive/brake
-    demand capped at mu*Fz, then the lateral force shrinks on the friction ellipse
-    ``(Fx/muFz)^2 + (Fy/muFz)^2 <= 1``. Wheel spins are quasi-static (slip ratio from force
-    use): explicit wheel-rotation dynamics would need ~1 kHz to be stable, and the observation
-    only needs spins that show slip and lock-up.
-    ``cd``/``sd`` are cos/sin of the wheel angle, computed once per control step by the caller.
+    demand; when demand and Fiala side force together exceed the friction circle
+    ``Fx^2 + Fy^2 <= (mu Fz)^2`` both are scaled back onto it. Wheel spins are quasi-static
+    (slip ratio from force use): explicit wheel-rotation dynamics would need ~1 kHz to be
+    stable, and the observation only needs spins that show slip and lock-up. ``cd``/``sd``
+    are cos/sin of the wheel angle, computed once per control step by the caller.
     """
     m = p[P_MASS]
     lf = p[P_LF]
@@ -429,63 +429,74 @@ def physics_substep(st: np.ndarray, steer: float, cd: float, sd: float, throttle
     drive_total = (throttle * engine_torque(rpm, torque, p[P_REDLINE]) * gears[g] * p[P_FD]
                    * p[P_EFF] / rw)
 
-    # Per-wheel velocities in the wheel frame.
+    # Axles. Drive and brake forces are shared between an axle's wheels in proportion to their
+    # loads (a limited-slip differential, an ideal left-right brake balance) and each wheel's
+    # stiffness and grip scale with its load, so the axle force is exactly the sum of its two
+    # wheels' Fiala forces: two tyre evaluations per substep instead of four.
     vy_front = vy + lf * r
-    vy_rear = vy - lr * r
     half_tw = 0.5 * tw
-    fz_front_static = m * GRAVITY * lr / wb
-    fz_rear_static = m * GRAVITY * lf / wb
-    brake_front = 0.5 * brake * p[P_BRAKE] * p[P_BIAS]
-    brake_rear = 0.5 * brake * p[P_BRAKE] * (1.0 - p[P_BIAS])
     fx_body = 0.0
     fy_body = 0.0
     mz = 0.0
-    for k in range(4):
-        side = -1.0 if (k == 0 or k == 2) else 1.0  # left wheels at +tw/2: slower in a left turn
-        vx_c = vx + side * half_tw * r
-        if k < 2:
-            fz_k = max(0.0, 0.5 * fz_front + side * lat_tr * lr / wb)
-            vxw = vx_c * cd + vy_front * sd
-            vyw = -vx_c * sd + vy_front * cd
-            fx_dem = -brake_front * _clip(vxw / 0.5, -1.0, 1.0)
-            c_alpha = p[P_CF] * fz_k / fz_front_static
+    for a in range(2):
+        if a == 0:
+            fz_l = max(0.0, 0.5 * fz_front - lat_tr * lr / wb)
+            fz_r = max(0.0, 0.5 * fz_front + lat_tr * lr / wb)
+            vxw = vx * cd + vy_front * sd
+            vyw = -vx * sd + vy_front * cd
+            fx_dem = -brake * p[P_BRAKE] * p[P_BIAS] * _clip(vxw / 0.5, -1.0, 1.0)
+            c_static = p[P_CF] / (m * GRAVITY * lr / wb)
         else:
-            fz_k = max(0.0, 0.5 * fz_rear + side * lat_tr * lf / wb)
-            vxw = vx_c
-            vyw = vy_rear
-            # Limited-slip differential: drive split in proportion to wheel load, so the
-            # unloaded inner wheel does not spin first in a corner.
-            fx_dem = (drive_total * fz_k / max(fz_rear, 1.0)
-                      - brake_rear * _clip(vxw / 0.5, -1.0, 1.0))
-            c_alpha = p[P_CR] * fz_k / fz_rear_static
-        fmax = mu * fz_k
+            fz_l = max(0.0, 0.5 * fz_rear - lat_tr * lf / wb)
+            fz_r = max(0.0, 0.5 * fz_rear + lat_tr * lf / wb)
+            vxw = vx
+            vyw = vy - lr * r
+            fx_dem = (drive_total
+                      - brake * p[P_BRAKE] * (1.0 - p[P_BIAS]) * _clip(vxw / 0.5, -1.0, 1.0))
+            c_static = p[P_CR] / (m * GRAVITY * lf / wb)
+        fz_ax = fz_l + fz_r
+        fmax = mu * fz_ax
         tan_a = vyw / max(abs(vxw), SLIP_MIN_SPEED_MPS)
-        fy0 = fiala_lateral_force(tan_a, c_alpha, fmax)
+        fy0 = fiala_lateral_force(tan_a, c_static * fz_ax, fmax)
+        fx = 0.0
+        fy = 0.0
+        kappa = 0.0
         if fmax > 0.0:
-            fx = _clip(fx_dem, -fmax, fmax)
-            use = fx / fmax
-            fy = fy0 * math.sqrt(max(0.0, 1.0 - use * use))
-        else:
-            fx = 0.0
-            fy = 0.0
-        # Quasi-static wheel spin: linear slip below the peak, growing with excess demand.
-        cx = SLIP_STIFFNESS_PER_N * max(fz_k, 1.0)
-        kappa = fx / cx
-        if fmax > 0.0 and abs(fx_dem) > fmax:
-            excess = abs(fx_dem) / fmax - 1.0
-            kappa += excess if fx_dem > 0.0 else -excess
-        omega = (vxw + kappa * max(abs(vxw), 1.0)) / rw
-        if fx_dem < 0.0 and vxw >= 0.0 and omega < 0.0:
-            omega = 0.0  # locked, not spinning backwards
-        st[ST_W_FL + k] = omega
-        if k < 2:
+            # Friction circle: a demand inside it is met; outside, the demanded (Fx, Fy) is
+            # scaled back onto it, so a spinning or locked wheel keeps a share of its side
+            # force instead of losing all of it (which made every launch a spin).
+            ux = fx_dem / fmax
+            uy = fy0 / fmax
+            u2 = ux * ux + uy * uy
+            if u2 > 1.0:
+                scale = 1.0 / math.sqrt(u2)
+                fx = fx_dem * scale
+                fy = fy0 * scale
+            else:
+                fx = fx_dem
+                fy = fy0
+            # Quasi-static slip ratio: linear below the peak, growing with excess demand.
+            kappa = fx / (SLIP_STIFFNESS_PER_N * fz_ax)
+            if abs(fx_dem) > fmax:
+                excess = abs(fx_dem) / fmax - 1.0
+                kappa += excess if fx_dem > 0.0 else -excess
+        for side in (-1.0, 1.0):  # left wheel (slower in a left turn), right wheel
+            vx_c = vx + side * half_tw * r
+            vxw_w = vx_c * cd + vy_front * sd if a == 0 else vx_c
+            omega = (vxw_w + kappa * max(abs(vxw_w), 1.0)) / rw
+            if fx_dem < 0.0 and vxw_w >= 0.0 and omega < 0.0:
+                omega = 0.0  # locked, not spinning backwards
+            st[ST_W_FL + 2 * a + (0 if side < 0.0 else 1)] = omega
+        # Yaw moment of the unequal left/right longitudinal forces (shared by load).
+        lr_share = (fz_r - fz_l) / fz_ax if fz_ax > 0.0 else 0.0
+        if a == 0:
             fxb = fx * cd - fy * sd
             fyb = fx * sd + fy * cd
-            mz += lf * fyb + side * half_tw * fxb
+            mz += lf * fyb + half_tw * lr_share * fxb
         else:
             fxb = fx
             fyb = fy
-            mz += -lr * fyb + side * half_tw * fxb
+            mz += -lr * fyb + half_tw * lr_share * fxb
         fx_body += fxb
         fy_body += fyb
 
@@ -514,7 +525,12 @@ def physics_substep(st: np.ndarray, steer: float, cd: float, sd: float, throttle
     sp = math.sin(psi)
     st[ST_X] += (vx * cp - vy * sp) * dt
     st[ST_Y] += (vx * sp + vy * cp) * dt
-    st[ST_PSI] = _wrap_angle(psi + r * dt)
+    psi += r * dt
+    if psi > math.pi:
+        psi -= TWO_PI
+    elif psi < -math.pi:
+        psi += TWO_PI
+    st[ST_PSI] = psi
 
 
 @njit(cache=True)
@@ -716,55 +732,76 @@ def control_step(st: np.ndarray, act: np.ndarray, p: np.ndarray, torque: np.ndar
 
 
 @njit(cache=True)
+def _step_one(c: int, state: np.ndarray, actions: np.ndarray, integrate: np.ndarray,
+              p: np.ndarray, torque: np.ndarray, gears: np.ndarray, geom: np.ndarray,
+              cfg: np.ndarray, lac_d: np.ndarray, obs: np.ndarray, out: np.ndarray) -> None:
+    """One car's env step: physics, telemetry, reward and end flags (see :func:`step_cars`)."""
+    length = cfg[C_LENGTH]
+    st = state[c]
+    o = out[c]
+    if integrate[c] == 0:
+        _locate(st, geom, length)
+        observe(st, geom, cfg, lac_d, obs[c])
+        o[O_REWARD] = 0.0
+        o[O_TERM] = TERM_NONE
+        o[O_TRUNC] = 0.0
+        o[O_LAP_TIME] = np.nan
+        o[O_DMG_INC] = 0.0
+        return
+    dist0 = st[ST_DIST]
+    control_step(st, actions[c], p, torque, gears, geom, cfg, o)
+    angle = observe(st, geom, cfg, lac_d, obs[c])
+    vx = st[ST_VX]
+    track_pos = obs[c, OBS_TRACKPOS]
+    reward = vx * (math.cos(angle) - abs(math.sin(angle)) - abs(track_pos))
+    reward -= cfg[C_DMG_W] * o[O_DMG_INC]
+    progress_mps = (st[ST_DIST] - dist0) / cfg[C_DT]
+    if progress_mps < cfg[C_SLOW_MPS]:
+        st[ST_SLOW] += 1.0
+    else:
+        st[ST_SLOW] = 0.0
+    i = int(st[ST_IDX])
+    track_h = _interp_heading(geom, G_H, i, st[ST_S], length)
+    term = TERM_NONE
+    if cfg[C_TERM_OFF] > 0.5 and st[ST_OFF] > 0.5:
+        term = TERM_OFF_TRACK
+    elif cfg[C_TERM_BACK] > 0.5 and math.cos(st[ST_PSI] - track_h) < 0.0:
+        term = TERM_BACKWARDS
+    elif cfg[C_TERM_SLOW] > 0.5 and st[ST_SLOW] >= cfg[C_SLOW_PATIENCE]:
+        term = TERM_SLOW
+    if term in (TERM_OFF_TRACK, TERM_BACKWARDS):
+        reward = -1.0
+    elif term == TERM_SLOW:
+        reward = -cfg[C_SLOW_PEN]
+    o[O_REWARD] = reward
+    o[O_TERM] = term
+    o[O_TRUNC] = 1.0 if (term == TERM_NONE and st[ST_STEPS] >= cfg[C_MAX_STEPS]) else 0.0
+
+
+@njit(cache=True)
 def step_cars(state: np.ndarray, actions: np.ndarray, integrate: np.ndarray, p: np.ndarray,
               torque: np.ndarray, gears: np.ndarray, geom: np.ndarray, cfg: np.ndarray,
               lac_d: np.ndarray, obs: np.ndarray, out: np.ndarray) -> None:
-    """The whole env step for N cars: physics, telemetry, reward and end flags.
+    """The whole env step for N cars, on the calling thread.
 
     Cars with ``integrate[c] == 0`` were just reset: they are only located (global scan when
     their hint is < 0) and observed, with reward 0 and no end flags.
     """
-    length = cfg[C_LENGTH]
     for c in range(state.shape[0]):
-        st = state[c]
-        o = out[c]
-        if integrate[c] == 0:
-            _locate(st, geom, length)
-            observe(st, geom, cfg, lac_d, obs[c])
-            o[O_REWARD] = 0.0
-            o[O_TERM] = TERM_NONE
-            o[O_TRUNC] = 0.0
-            o[O_LAP_TIME] = np.nan
-            o[O_DMG_INC] = 0.0
-            continue
-        dist0 = st[ST_DIST]
-        control_step(st, actions[c], p, torque, gears, geom, cfg, o)
-        angle = observe(st, geom, cfg, lac_d, obs[c])
-        vx = st[ST_VX]
-        track_pos = obs[c, OBS_TRACKPOS]
-        reward = vx * (math.cos(angle) - abs(math.sin(angle)) - abs(track_pos))
-        reward -= cfg[C_DMG_W] * o[O_DMG_INC]
-        progress_mps = (st[ST_DIST] - dist0) / cfg[C_DT]
-        if progress_mps < cfg[C_SLOW_MPS]:
-            st[ST_SLOW] += 1.0
-        else:
-            st[ST_SLOW] = 0.0
-        i = int(st[ST_IDX])
-        track_h = _interp_heading(geom, G_H, i, st[ST_S], length)
-        term = TERM_NONE
-        if cfg[C_TERM_OFF] > 0.5 and st[ST_OFF] > 0.5:
-            term = TERM_OFF_TRACK
-        elif cfg[C_TERM_BACK] > 0.5 and math.cos(st[ST_PSI] - track_h) < 0.0:
-            term = TERM_BACKWARDS
-        elif cfg[C_TERM_SLOW] > 0.5 and st[ST_SLOW] >= cfg[C_SLOW_PATIENCE]:
-            term = TERM_SLOW
-        if term in (TERM_OFF_TRACK, TERM_BACKWARDS):
-            reward = -1.0
-        elif term == TERM_SLOW:
-            reward = -cfg[C_SLOW_PEN]
-        o[O_REWARD] = reward
-        o[O_TERM] = term
-        o[O_TRUNC] = 1.0 if (term == TERM_NONE and st[ST_STEPS] >= cfg[C_MAX_STEPS]) else 0.0
+        _step_one(c, state, actions, integrate, p, torque, gears, geom, cfg, lac_d, obs, out)
+
+
+@njit(cache=True, parallel=True)
+def step_cars_parallel(state: np.ndarray, actions: np.ndarray, integrate: np.ndarray,
+                       p: np.ndarray, torque: np.ndarray, gears: np.ndarray, geom: np.ndarray,
+                       cfg: np.ndarray, lac_d: np.ndarray, obs: np.ndarray,
+                       out: np.ndarray) -> None:
+    """:func:`step_cars` with cars spread over numba's threads (cars are independent).
+
+    For a vector env that owns the machine; training workers keep one thread each (DESIGN.md).
+    """
+    for c in prange(state.shape[0]):
+        _step_one(c, state, actions, integrate, p, torque, gears, geom, cfg, lac_d, obs, out)
 
 
 @njit(cache=True)

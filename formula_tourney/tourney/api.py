@@ -497,24 +497,30 @@ def render_results(console: Any, result: dict[str, Any]) -> None:
 
 
 def render_plan(console: Any, plan: dict[str, Any], results: str) -> None:
-    """The dry-run view: one row per part."""
-    from rich.table import Table
+    """The dry-run view: one short block per part (fits a narrow terminal)."""
+    from rich.markup import escape
 
-    table = Table(title=f"plan of {plan['tournament']} -> {results}")
-    for col in ("part", "study", "entrants", "setups", "train", "test", "seeds", "episodes",
-                "jobs"):
-        table.add_column(col)
+    console.print(f"[bold]plan of {plan['tournament']}[/bold] -> {results}/"
+                  f"  ({plan['known_jobs']} jobs known now; promoted parts add theirs later)")
+    if plan.get("description"):
+        console.print(f"  {plan['description']}")
     for part in plan["parts"]:
-        entrants = (", ".join(part["entrants"]) if "entrants" in part
-                    else f"from {part['promoted_from']}: {part['rule']}")
-        table.add_row(
-            part["part"], part["study"], entrants, ", ".join(part["setups"]),
-            ", ".join(part["train_tracks"]), ", ".join(part["test_tracks"]), str(part["seeds"]),
-            str(part["episodes"]),
-            str(part["jobs"]) if part["jobs"] is not None
-            else f"{part['jobs_per_entrant']} per entrant",
+        if "entrants" in part:
+            who = f"{len(part['entrants'])} entrants ({', '.join(part['entrants'])})"
+            jobs = f"= {part['jobs']} jobs"
+        else:
+            who = f"promoted from {part['promoted_from']} ({part['rule']})"
+            jobs = f"= {part['jobs_per_entrant']} jobs per promoted variant"
+        console.print(f"[bold]{part['part']}[/bold] (study {part['study']}): {escape(who)}")
+        console.print(f"    x setups {', '.join(part['setups'])} x {part['seeds']} seeds {jobs}")
+        console.print(
+            f"    train {', '.join(part['train_tracks'])}; test {', '.join(part['test_tracks'])}"
+            f" every {part['test_every_episodes'] or 'default'} episodes; "
+            f"{part['episodes'] or 'default'} episodes x {part['max_steps'] or 'default'} steps;"
+            f" selection {part['selection']}"
         )
-    console.print(table)
+        if part["baselines"]:
+            console.print(f"    baselines {', '.join(part['baselines'])}")
 
 
 def _fmt(value: Any) -> str:

@@ -92,7 +92,7 @@ def train_kwargs(spec: Tournament, part: Part, variant: str, setup: Any, seed: i
     settings = spec.settings(part)
     kwargs: dict[str, Any] = {
         "variant": base,
-        "overrides": overrides,
+        "overrides": {**(settings.get("variant_overrides") or {}), **overrides},
         "train_tracks": list(part.train_tracks),
         "reference": setup.reference,
         "lac": setup.lac,
@@ -102,7 +102,7 @@ def train_kwargs(spec: Tournament, part: Part, variant: str, setup: Any, seed: i
     if part.selection.kind == "general":
         kwargs["save_test_checkpoints"] = True
     for key, value in settings.items():
-        if key == "seeds" or value is None:
+        if key in ("seeds", "variant_overrides") or value is None:
             continue
         kwargs.setdefault(key, value)
     return kwargs
@@ -184,13 +184,21 @@ def validate_plan(spec: Tournament, path: Path, text: str, root: Path) -> None:
     from formula_tourney.agents.variants import get_variant
 
     for index, part in enumerate(spec.parts):
-        for variant in part_variants(spec, part) or []:
+        for variant in part_variants(spec, part) or spec.variant_names():
             base, _family, overrides = resolve_variant(spec, variant)
+            merged = {**(spec.settings(part).get("variant_overrides") or {}), **overrides}
             try:
-                get_variant(base, overrides)
+                get_variant(base, merged)
             except UserInputError as err:
-                loc = ("variants", variant, "overrides") if variant in spec.variants else (
-                    "parts", index, "entrants")
+                loc: tuple[Any, ...] = ("variants", variant, "overrides")
+                try:
+                    get_variant(base, overrides)
+                except UserInputError:
+                    pass  # the variant's own overrides are wrong
+                else:  # they are fine alone: the shared variant_overrides are to blame
+                    loc = ("parts", index, "variant_overrides")
+                    if part.variant_overrides is None:
+                        loc = ("defaults", "variant_overrides")
                 raise error_at(path, text, loc, str(err)) from None
     for name in spec.variants:
         base, _family, overrides = resolve_variant(spec, name)
@@ -274,7 +282,9 @@ def describe_plan(spec: Tournament, planned: list[PlannedPart]) -> dict[str, Any
                 "promoted_from": part.promoted_from,
                 "rule": ("best per family, " if rule.best_per_family else "")
                 + (f"top {rule.top_k} " if rule.top_k else "all ")
-                + f"by {rule.metric}, finish rate >= {rule.min_finish_rate:g}",
+                + f"by {rule.metric}, finish rate >= {rule.min_finish_rate:g}"
+                + (", unfinished classified by distance" if rule.unfinished == "by_distance"
+                   else ""),
             }
             n_jobs = None
         total_jobs += n_jobs or 0

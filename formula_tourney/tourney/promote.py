@@ -35,9 +35,14 @@ def rank_entrants(jobs: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
         lap = job.get("best_lap_s")
         if job["status"] == "done" and lap is not None and not math.isnan(float(lap)):
             row["laps"].append(float(lap))
+        dist = job.get("test_distance_m")
+        if job["status"] == "done" and dist is not None and not math.isnan(float(dist)):
+            row.setdefault("distances", []).append(float(dist))
     ranking = []
     for row in groups.values():
         laps = row.pop("laps")
+        distances = row.pop("distances", [])
+        row["distance_m"] = sum(distances) / len(distances) if distances else None
         row["finished_seeds"] = len(laps)
         row["finish_rate"] = len(laps) / row["seeds"] if row["seeds"] else 0.0
         row["aLT"] = sum(laps) / len(laps) if laps else None
@@ -64,20 +69,30 @@ def promote(ranking: list[dict[str, Any]], rule: Promotion) -> tuple[list[str], 
 
     rows = [dict(r) for r in sorted(ranking, key=key)]
     eligible = []
+    below = []
     for row in rows:
         if row[metric] is None:
             row["decision"] = "no clean lap"
+            below.append(row)
         elif row["finish_rate"] < rule.min_finish_rate:
             row["decision"] = f"finish rate {row['finish_rate']:.2f} < {rule.min_finish_rate:g}"
+            below.append(row)
         else:
             eligible.append(row)
+    if rule.unfinished == "by_distance":
+        # Motorsport classifies cars that did not finish by the distance they covered.
+        classified = [r for r in below if r.get("distance_m") is not None]
+        classified.sort(key=lambda r: (-r["distance_m"], r["entrant"]))
+        for row in classified:
+            row["decision"] += f"; classified by distance {row['distance_m']:.0f} m"
+        eligible += classified
     chosen = eligible
     if rule.best_per_family:
         seen: set[str] = set()
         chosen = []
         for row in eligible:
             if row["family"] in seen:
-                row["decision"] = f"not best of family {row['family']}"
+                _decide(row, f"not best of family {row['family']}")
                 continue
             seen.add(row["family"])
             chosen.append(row)
@@ -85,11 +100,16 @@ def promote(ranking: list[dict[str, Any]], rule: Promotion) -> tuple[list[str], 
     via: dict[str, str] = {}
     for row in chosen:
         if row["variant"] in via:
-            row["decision"] = f"variant promoted via {via[row['variant']]}"
+            _decide(row, f"variant promoted via {via[row['variant']]}")
         elif rule.top_k is not None and len(variants) >= rule.top_k:
-            row["decision"] = f"outside top {rule.top_k}"
+            _decide(row, f"outside top {rule.top_k}")
         else:
-            row["decision"] = "promoted"
+            _decide(row, "promoted")
             via[row["variant"]] = row["entrant"]
             variants.append(row["variant"])
     return variants, rows
+
+
+def _decide(row: dict[str, Any], text: str) -> None:
+    """Record a decision, after the classification note of an unfinished entrant if any."""
+    row["decision"] = f"{row['decision']}; {text}" if row.get("decision") else text

@@ -163,6 +163,7 @@ def job_metrics(job_dir: Path, train_track: str) -> dict[str, Any]:
         "finished": bool(summary.get("finished", False)),
         "damage": _float(summary.get("damage")),
         "seconds": _float(summary.get("seconds")),
+        "distance_m": math.nan,
     }
     tests_path = job_dir / "tests.parquet"
     if tests_path.is_file():
@@ -171,6 +172,9 @@ def job_metrics(job_dir: Path, train_track: str) -> dict[str, Any]:
             clean = _clean_laps(tests, train_track)
             out["best_lap_s"] = float(clean["best_lap_s"].min()) if len(clean) else math.nan
             out["finished"] = bool(len(clean))
+            on_track = tests[tests["track"] == train_track]
+            if "distance_m" in tests.columns and len(on_track):
+                out["distance_m"] = float(on_track["distance_m"].max())
     return out
 
 

@@ -109,6 +109,12 @@ class Promotion(_Strict):
         le=1.0,
         description="Fraction of an entrant's seeds that must have a clean timed lap to be ranked.",
     )
+    unfinished: Literal["exclude", "by_distance"] = Field(
+        "exclude",
+        description="Entrants below the finish rate: exclude (the paper ranks lap times only), "
+        "or classify them after all finishers by the mean distance their tests covered (as "
+        "motorsport classifies retirements; for short demo budgets).",
+    )
 
 
 class Selection(_Strict):
@@ -153,6 +159,11 @@ class JobSettings(_Strict):
     )
     env_overrides: dict[str, Any] | None = Field(
         None, description="FormulaRacing-v0 config keys to change (e.g. slow_patience_steps)."
+    )
+    variant_overrides: dict[str, Any] | None = Field(
+        None,
+        description="Hyperparameters applied to every variant here (e.g. smaller nets for a "
+        "demo); a variant's own overrides win.",
     )
 
 

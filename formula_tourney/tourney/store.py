@@ -37,7 +37,7 @@ CREATE TABLE IF NOT EXISTS jobs (
     status TEXT NOT NULL DEFAULT 'pending', reason TEXT, attempts INTEGER NOT NULL DEFAULT 0,
     path TEXT, started_at TEXT, finished_at TEXT, wall_s REAL,
     position INTEGER, config_hash TEXT, worker_pid INTEGER,
-    best_lap_s REAL, finished INTEGER, damage REAL, train_seconds REAL
+    best_lap_s REAL, finished INTEGER, damage REAL, train_seconds REAL, test_distance_m REAL
 );
 CREATE TABLE IF NOT EXISTS parts (
     part TEXT PRIMARY KEY, study TEXT, position INTEGER, status TEXT NOT NULL DEFAULT 'pending',
@@ -211,11 +211,12 @@ class Store:
         with self.transaction() as db:
             db.execute(
                 "UPDATE jobs SET status='done', reason=NULL, finished_at=?, wall_s=?, "
-                "best_lap_s=?, finished=?, damage=?, train_seconds=? WHERE job_id=?",
+                "best_lap_s=?, finished=?, damage=?, train_seconds=?, test_distance_m=? "
+                "WHERE job_id=?",
                 (
                     now_iso(), wall_s, _num(metrics.get("best_lap_s")),
                     int(bool(metrics.get("finished"))), _num(metrics.get("damage")),
-                    _num(metrics.get("seconds")), job_id,
+                    _num(metrics.get("seconds")), _num(metrics.get("distance_m")), job_id,
                 ),
             )
 
@@ -274,8 +275,10 @@ class Store:
                 continue
             job_dir = self.root / row["path"]
             if is_finished(job_dir):
-                summary = json.loads((job_dir / SUMMARY_FILE).read_text(encoding="utf-8"))
-                self.mark_done(row["job_id"], summary, None)
+                from formula_tourney.tourney.runner import job_metrics
+
+                train_track = json.loads(row["train_tracks"])[0]
+                self.mark_done(row["job_id"], job_metrics(job_dir, train_track), None)
                 fixed["recovered_done"] += 1
             elif row["status"] == "running":
                 self.mark_pending(row["job_id"])

@@ -153,7 +153,9 @@ def _train_kwargs(spec: TuneSpec, variant: str, overrides: dict[str, Any]) -> di
     }
     for key in JobSettings.model_fields:
         value = getattr(train, key)
-        if key != "seeds" and value is not None:
+        if key == "variant_overrides" and value:
+            kwargs["overrides"] = {**value, **overrides}
+        elif key not in ("seeds", "variant_overrides") and value is not None:
             kwargs[key] = value
     return kwargs
 
