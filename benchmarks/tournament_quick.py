@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import sqlite3
 import tempfile
 import time
@@ -51,11 +52,19 @@ def main() -> None:
     parser.add_argument(
         "--file", type=Path, default=Path(__file__).resolve().parents[1] / "tournaments/quick.toml"
     )
+    parser.add_argument("--episodes", type=int, default=None,
+                        help="scale down: every 'episodes = N' in the file becomes this value")
     parser.add_argument("--json", action="store_true", help="print one JSON document")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="ft-bench-") as tmp:
-        one = measure(args.file, 1, Path(tmp) / "w1")
-        two = measure(args.file, 2, Path(tmp) / "w2")
+        file = args.file
+        if args.episodes is not None:
+            file = Path(tmp) / args.file.name
+            text = re.sub(r"(?m)^episodes = \d+", f"episodes = {args.episodes}",
+                          args.file.read_text(encoding="utf-8"))
+            file.write_text(text, encoding="utf-8")
+        one = measure(file, 1, Path(tmp) / "w1")
+        two = measure(file, 2, Path(tmp) / "w2")
     efficiency = one["wall_s"] / (2.0 * two["wall_s"])
     setup_s = one["job_wall_s"] - one["train_s"]
     parent_s = one["wall_s"] - one["job_wall_s"]
@@ -72,7 +81,8 @@ def main() -> None:
     if args.json:
         print(json.dumps(out))
         return
-    print(f"quick tournament: {one['jobs_done']} jobs ({one['jobs_failed']} failed)")
+    scale = f", episodes scaled to {args.episodes}" if args.episodes else ""
+    print(f"{args.file.name}: {one['jobs_done']} jobs ({one['jobs_failed']} failed){scale}")
     print(f"  1 worker : {one['wall_s']:7.1f} s wall, {one['train_s']:7.1f} s inside train()")
     print(f"  2 workers: {two['wall_s']:7.1f} s wall, {two['train_s']:7.1f} s inside train()")
     print(f"parallel efficiency: {efficiency:.2f} (ideal 1.00)")

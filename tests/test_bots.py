@@ -69,7 +69,11 @@ def test_follower_targets_and_config_checks(lines):
     track, _, mincurv = lines["stadium"]
     bot = Follower(track, mincurv, config=FollowerConfig(speed_factor=0.9))
     i = track.n // 2
-    assert bot.target_speed_mps(track.s_m[i]) == pytest.approx(0.9 * bot.plan.speed_mps[i])
+    assert bot.target_speed_mps(track.s_m[i]) == pytest.approx(bot.plan.speed_mps[i])
+    # The margin is on corner speeds only; the slowest corner is planned at 90% of its limit.
+    assert np.all(bot.target_mps <= 0.9 * bot.profile.corner_speed_mps + 1e-9)
+    slowest = int(np.argmin(bot.profile.speed_mps))
+    assert bot.target_mps[slowest] == pytest.approx(0.9 * bot.profile.speed_mps[slowest], rel=0.01)
     assert math.isclose(bot.profile.lap_time_s, lap_time_s(track, mincurv))
     with pytest.raises(UserInputError):
         FollowerConfig(speed_factor=-1.0).validate()

@@ -75,3 +75,18 @@ def test_vector_env_arguments_are_checked():
     venv = FormulaRacingVectorEnv(num_envs=2, config={"track": TRACK}, render_mode="rgb_array")
     venv.reset(seed=0)
     assert venv.render().shape[2] == 3
+
+
+def test_batched_autoreset_places_cars_like_a_single_reset():
+    venv = FormulaRacingVectorEnv(num_envs=3, config={"track": TRACK, "random_start": True,
+                                                       "start_speed_mps": 12.0})
+    venv.reset(seed=0)
+    b = venv._b
+    rng = np.random.default_rng(3)
+    cars = np.array([0, 2])
+    b.reset_cars(cars, rng)
+    s = np.random.default_rng(3).uniform(0.0, TRACK.length_m, size=2)
+    for c, s_c in zip(cars, s, strict=True):
+        row = b.state[c].copy()
+        b.reset_car(int(c), rng, {"start_s_m": float(s_c)})
+        np.testing.assert_array_equal(row, b.state[c])

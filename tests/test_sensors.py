@@ -111,3 +111,21 @@ def test_lac_reads_reference_curvature_ahead():
     np.testing.assert_allclose(lac, 1 / 80.0, rtol=0.02)
     obs, _ = env.reset(options={"start_s_m": 100.0})
     np.testing.assert_allclose(obs[29:], 0.0, atol=1e-9)
+
+
+@pytest.mark.parametrize("track", [TRACK, stadium(straight_m=60, radius_m=12, width_m=10,
+                                                  step_m=1.0, name="hairpin")])
+def test_local_projection_matches_the_global_scan(track):
+    """The kernel's hill-climb from the last index agrees with Track.project's full scan."""
+    geom = track_geometry(track, ReferenceLine.centre(track))
+    rng = np.random.default_rng(2)
+    s, hint, worst = 0.0, -1, 0.0
+    for _ in range(1500):
+        s = (s + rng.uniform(-0.3, 1.0)) % track.length_m  # a car moves < 1 m per substep
+        lat = rng.uniform(-1.0, 1.0) * (track.width_left_m[0] + 1.0)
+        x, y, _ = (float(v) for v in track.pose_at(s, lat))
+        s_k, lat_k, hint = K.project(geom, track.length_m, x, y, hint)
+        s_g, lat_g, _ = track.project(x, y)
+        ds = abs(s_k - s_g)
+        worst = max(worst, min(ds, track.length_m - ds) + abs(lat_k - lat_g))
+    assert worst < 2e-3

@@ -67,7 +67,7 @@ class CarParams(BaseModel):
         30000.0, gt=0, description="Total brake force at full pedal, before the grip limit."
     )
     brake_bias_front: float = Field(0.6, gt=0, lt=1, description="Front share of brake force.")
-    max_steer_rad: float = Field(0.366, gt=0, description="Front wheel angle at full lock (21 deg).")
+    max_steer_rad: float = Field(0.366, gt=0, description="Wheel angle at full lock (21 deg).")
     wall_damage_per_mps: float = Field(
         100.0, ge=0, description="Damage points per m/s of impact speed into a wall."
     )

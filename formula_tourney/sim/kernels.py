@@ -241,18 +241,21 @@ def project(geom: np.ndarray, length: float, x: float, y: float, hint: int):
     else:
         i = hint % n
     d2, t = _seg_dist2(geom, i, x, y)
-    for _ in range(n):
+    moved = False
+    for _ in range(n):  # forward first: cars mostly move forward
         ip = i + 1 if i + 1 < n else 0
         dn, tn = _seg_dist2(geom, ip, x, y)
-        if dn < d2:
-            i, d2, t = ip, dn, tn
-            continue
-        im = i - 1 if i > 0 else n - 1
-        dp, tp = _seg_dist2(geom, im, x, y)
-        if dp < d2:
+        if dn >= d2:
+            break
+        i, d2, t = ip, dn, tn
+        moved = True
+    if not moved:  # (after a forward move the segment behind is known to be farther)
+        for _ in range(n):
+            im = i - 1 if i > 0 else n - 1
+            dp, tp = _seg_dist2(geom, im, x, y)
+            if dp >= d2:
+                break
             i, d2, t = im, dp, tp
-            continue
-        break
     s = geom[i, G_S] + t * geom[i, G_SLEN]
     if s >= length:
         s -= length

@@ -235,7 +235,7 @@ def fail_and_retry(study: Any, trial: Any, max_retry: int, why: str) -> bool:
     study.add_trial(
         optuna.trial.create_trial(
             state=TrialState.WAITING, params=trial.params, distributions=trial.distributions,
-            user_attrs={k: v for k, v in trial.user_attrs.items() if k != "worker_pid"},
+            user_attrs={k: v for k, v in trial.user_attrs.items() if k != "worker"},
             system_attrs={"failed_trial": history[0], "retry_history": history},
         )
     )
@@ -257,7 +257,7 @@ def _objective(trial: Any, spec: TuneSpec, variant: str, trial_root: Path) -> fl
     from formula_tourney.tourney.plan import Job
     from formula_tourney.tourney.runner import job_metrics, run_job
 
-    trial.set_user_attr("worker_pid", os.getpid())
+    trial.set_user_attr("worker", _worker_tag(os.getpid()))
     overrides = suggest(trial, spec.search)
     out_dir = trial_root / f"trial-{trial.number}"
     job = Job(job_id=f"tune/{variant}/trial-{trial.number}", kind="train", part="tune",
@@ -391,6 +391,13 @@ def run_tune(
     return result
 
 
+def _worker_tag(pid: int | None) -> str:
+    """host:pid of a trial's process: pids alone collide between machines sharing an RDB."""
+    import socket
+
+    return f"{socket.gethostname()}:{pid}"
+
+
 def _cores() -> int:
     try:
         return max(1, len(os.sched_getaffinity(0)))
@@ -432,7 +439,7 @@ def _run_workers(spec: TuneSpec, variant: str, storage: str | None, journal: Pat
                     continue
                 deaths += 1
                 for trial in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,)):
-                    if trial.user_attrs.get("worker_pid") == proc.pid:
+                    if trial.user_attrs.get("worker") == _worker_tag(proc.pid):
                         retried += fail_and_retry(study, trial, spec.max_retry,
                                                   f"worker exit code {proc.exitcode}")
                 if _counted(study) < trials and deaths <= trials * (spec.max_retry + 1):
