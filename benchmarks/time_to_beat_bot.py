@@ -29,7 +29,7 @@ from pathlib import Path  # noqa: E402
 
 # Settings of the measured run (WIN1 otherwise at its registered defaults). The exploration
 # phase is shortened from the paper-scale 100k steps to fit a 10-minute budget.
-OVERRIDES = {"exploration_steps": 15_000, "learning_starts": 1_000, "buffer_size": 200_000}
+OVERRIDES = {"exploration_steps": 40_000, "learning_starts": 1_000, "buffer_size": 200_000}
 TEST_EVERY = 5
 TEST_STARTS = 3
 

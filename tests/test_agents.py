@@ -87,9 +87,7 @@ def test_per_update_writes_the_papers_priority() -> None:
     np.testing.assert_allclose(agent.last_priorities, p, rtol=1e-4)
     last_write = {i: k for k, i in enumerate(batch.indices)}  # duplicates: last write wins
     idx = np.array(list(last_write))
-    np.testing.assert_allclose(
-        buf.tree.values(idx), p[list(last_write.values())] ** 0.5, rtol=1e-4
-    )
+    np.testing.assert_allclose(buf.tree.values(idx), p[list(last_write.values())] ** 0.5, rtol=1e-4)
 
 
 def test_brake_exploration_never_presses_both_pedals_beyond_the_rule() -> None:

@@ -40,8 +40,12 @@ def _flat_torque_car(force_n: float, **kw) -> CarParams:
 
 # --- speed profile: closed forms -------------------------------------------------------------
 
+STIFF = {"cornering_stiffness_front_n_per_rad": 1e12, "cornering_stiffness_rear_n_per_rad": 1e12}
+"""Tyres that corner without slip: no cornering drag, so the textbook closed forms hold."""
+
+
 def test_circle_no_drag_matches_textbook_corner_speed():
-    car = CarParams(drag_coef_n_per_mps2=0.0, rolling_resistance=0.0)
+    car = CarParams(drag_coef_n_per_mps2=0.0, rolling_resistance=0.0, **STIFF)
     radius = 80.0
     expected_v = math.sqrt(car.mu * car.mass_kg * G * radius
                            / (car.mass_kg - car.mu * car.downforce_coef_n_per_mps2 * radius))
@@ -51,8 +55,8 @@ def test_circle_no_drag_matches_textbook_corner_speed():
     assert np.ptp(prof.speed_mps) < 0.01
 
 
-def test_circle_default_car_holds_speed_against_drag():
-    car = CarParams()
+def test_circle_holds_speed_against_drag():
+    car = CarParams(**STIFF)
     radius = 100.0
     v = float(corner_speed_mps(1 / radius, car))
     normal = car.mass_kg * G + car.downforce_coef_n_per_mps2 * v * v
@@ -63,6 +67,42 @@ def test_circle_default_car_holds_speed_against_drag():
     assert 42.0 < v < 45.0
     prof = speed_profile(circle(radius), 0.0, car)
     assert prof.lap_time_s == pytest.approx(2 * math.pi * radius / v, rel=5e-4)
+
+
+def _fiala_drag(force, f_max, stiffness):
+    """Independent check of the cornering drag: F tan(alpha) with F/Fmax = 1 - (1 - u)^3."""
+    u = 1.0 - (1.0 - min(force / f_max, 1.0)) ** (1.0 / 3.0)
+    return force * 3.0 * f_max * u / stiffness
+
+
+def test_circle_default_car_settles_where_engine_meets_cornering_drag():
+    car = CarParams()
+    radius = 250.0
+    m, g = car.mass_kg, G
+    wb, lf, lr = car.wheelbase_m, car.cg_to_front_m, car.cg_to_rear_m
+
+    def surplus(v):
+        normal = m * g + car.downforce_coef_n_per_mps2 * v * v
+        lat = m * v * v / radius
+        load = normal / (m * g)
+        cornering = (
+            _fiala_drag(lat * lr / wb, car.mu * normal * lr / wb,
+                        car.cornering_stiffness_front_n_per_rad * load)
+            + _fiala_drag(lat * lf / wb, car.mu * normal * lf / wb,
+                          car.cornering_stiffness_rear_n_per_rad * load))
+        resist = car.drag_coef_n_per_mps2 * v * v + car.rolling_resistance * normal + cornering
+        return float(car.max_drive_force_n(v)) - resist
+
+    lo, hi = 10.0, float(corner_speed_mps(1 / radius, car))
+    assert surplus(hi) < 0 < surplus(lo)  # at the friction limit the tyres drag too much
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if surplus(mid) > 0 else (lo, mid)
+    prof = speed_profile(circle(radius), 0.0, car)
+    assert np.median(prof.speed_mps) == pytest.approx(lo, rel=2e-3)
+    assert prof.lap_time_s == pytest.approx(2 * math.pi * radius / lo, rel=2e-3)
+    # Cornering drag costs several percent against the friction-limited speed.
+    assert lo < 0.97 * corner_speed_mps(1 / radius, car)
 
 
 def test_straight_constant_force_from_standstill():

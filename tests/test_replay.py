@@ -61,9 +61,7 @@ def test_n_step_target_matches_hand_computed_sum() -> None:
     np.testing.assert_allclose(b.rewards, expected_r, rtol=1e-6)
     np.testing.assert_array_equal(b.n_steps, [3, 3, 3, 2, 1, 3, 3, 2, 1])
     # terminal ends: y = r (discount 0); truncated ends bootstrap with gamma^m (adopted target)
-    np.testing.assert_allclose(
-        b.discounts, [g**3, g**3, 0, 0, 0, g**3, g**3, g**2, g], rtol=1e-6
-    )
+    np.testing.assert_allclose(b.discounts, [g**3, g**3, 0, 0, 0, g**3, g**3, g**2, g], rtol=1e-6)
     # bootstrap state s_{t+m}
     np.testing.assert_allclose(b.next_observations[:, 0, 0], [3, 4, 5, 5, 5, 13, 14, 14, 14])
 

@@ -27,7 +27,12 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from formula_tourney.errors import UserInputError
-from formula_tourney.lines.speed_profile import CarModel, brake_force_limit_n, speed_profile
+from formula_tourney.lines.speed_profile import (
+    CarModel,
+    brake_force_limit_n,
+    cornering_drag_n,
+    speed_profile,
+)
 from formula_tourney.sim.car_params import GRAVITY_MPS2, CarParams
 from formula_tourney.sim.reference import ReferenceLine
 from formula_tourney.sim.track import Track
@@ -258,7 +263,9 @@ class Follower:
             # and using the transferred load spun the car on corner exits (measured).
             rear = c.cg_to_front_m / (c.wheelbase_m - cfg.traction_transfer * c.mu * c.cg_height_m)
             rear_spare = cfg.traction_use * rear * math.sqrt(max(grip**2 - lat_force**2, 0.0))
-            force = min(c.mass_kg * a_req + resist, rear_spare)
+            # The tyres' cornering drag must be paid too, or the car sags through long corners.
+            drag = cornering_drag_n(c, speed, c.mass_kg * v * v * abs(k_line))
+            force = min(c.mass_kg * a_req + resist + drag, rear_spare)
             full = self._drive_force(speed)
             throttle = max(0.0, min(1.0, force / max(full, 1.0)))
         else:

@@ -46,7 +46,7 @@ def register(app: typer.Typer) -> None:
 
     @app.command()
     def tune(
-        file: Path = typer.Argument(..., help="Tune file with a [search] space, e.g. "
+        file: Path = typer.Argument(..., help="Tune file with a search table, e.g. "
                                     "tournaments/tune.toml."),
         variant: str = typer.Option(..., "--variant", help="Variant to tune, e.g. WIN4."),
         trials: int = typer.Option(..., "--trials", help="Finished trials wanted in the study."),
@@ -58,8 +58,8 @@ def register(app: typer.Typer) -> None:
         ),
         resume: bool = typer.Option(False, "--resume", help="Continue an existing study."),
         write_best: Path | None = typer.Option(
-            None, "--write-best", help="Write the best parameters into this tournament file "
-            "as [variants.<VARIANT>.overrides]."
+            None, "--write-best", help="Merge the best parameters into this tournament "
+            "file's overrides of the variant."
         ),
         results: Path = typer.Option(Path("results"), "--results", help="Results folder."),
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),

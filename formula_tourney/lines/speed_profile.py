@@ -54,6 +54,8 @@ class CarModel:
     cg_height_m: float
     max_brake_force_n: float
     brake_bias_front: float
+    cornering_stiffness_front: float
+    cornering_stiffness_rear: float
     drive_force_grid_n: np.ndarray
     brake_scale: float = 1.0
     """1 for the physical limit; a driver keeping a braking reserve plans with less."""
@@ -79,8 +81,20 @@ class CarModel:
             cg_height_m=car.cg_height_m,
             max_brake_force_n=car.max_brake_force_n,
             brake_bias_front=car.brake_bias_front,
+            cornering_stiffness_front=car.cornering_stiffness_front_n_per_rad,
+            cornering_stiffness_rear=car.cornering_stiffness_rear_n_per_rad,
             drive_force_grid_n=np.ascontiguousarray(car.max_drive_force_n(speeds), dtype=float),
         )
+
+
+    def packed(self) -> np.ndarray:
+        """The scalars in the order the compiled passes read them (``_M`` ... ``_CR``)."""
+        return np.array([
+            self.mass_kg, self.mu, self.downforce_coef, self.drag_coef, self.rolling_resistance,
+            self.cg_to_front_m, self.wheelbase_m, self.cg_height_m, self.max_brake_force_n,
+            self.brake_bias_front, self.brake_lateral_cutoff, self.brake_scale,
+            self.cornering_stiffness_front, self.cornering_stiffness_rear,
+        ], dtype=float)
 
 
 @dataclass(frozen=True)
@@ -138,11 +152,30 @@ def corner_speed_mps(curvature_1pm: np.ndarray | float, car: CarParams) -> np.nd
     return np.sqrt(u)
 
 
+# Layout of the packed parameter array the compiled passes read.
+_M, _MU, _CL, _CD, _CRR, _LF, _WB, _H, _BRAKE, _BIAS, _CUTOFF, _BSCALE, _CF, _CR = range(14)
+
+
 @numba.njit(cache=True)
-def _net_accel(v, k, sign, m, mu, cl, cd, crr, lf, wb, h, brake_max, bias, cutoff, scale, grid,
-               step):
+def _axle_drag(force, f_max, stiffness):
+    """Drag of an axle carrying lateral ``force``: ``force * tan(alpha)`` at the Fiala slip
+    angle that makes it (``F/Fmax = 1 - (1 - u)^3``, ``tan(alpha) = 3 Fmax u / C``)."""
+    if f_max <= 0.0 or stiffness <= 0.0:
+        return 0.0
+    ratio = min(abs(force) / f_max, 1.0)
+    u = 1.0 - (1.0 - ratio) ** (1.0 / 3.0)
+    return abs(force) * 3.0 * f_max * u / stiffness
+
+
+@numba.njit(cache=True)
+def _net_accel(v, k, sign, p, grid, step):
     """Longitudinal acceleration: sign=+1 full throttle, sign=-1 full brake (as a deceleration).
 
+    Resistance is aero drag, rolling resistance and the *cornering drag* of the tyres: a tyre
+    makes lateral force at a slip angle, so its force leans back by that angle (``F tan
+    alpha``; Fiala curve, load-scaled stiffness, as in ``sim.kernels``). On a 250 m radius at
+    64 m/s that is ~1.8 kN, as much as aero drag: without it the profile expected the car to
+    accelerate through fast sweepers that it could not even hold speed in (measured).
     Rear-wheel drive: the drive force is also capped by the rear axle's grip, whose load grows
     with the acceleration itself (load transfer ``m a h / wheelbase``, as in ``sim.kernels``):
     ``F = mu (N lf - h R) / (wb - mu h)`` with ``R`` the resistance, solved for ``F``.
@@ -151,13 +184,18 @@ def _net_accel(v, k, sign, m, mu, cl, cd, crr, lf, wb, h, brake_max, bias, cutof
     (the rear, for the default car: braking harder locks it and the car spins, as measured in
     the simulator), scaled down by the share of grip cornering already uses.
     """
+    m, mu, lf, wb, h = p[_M], p[_MU], p[_LF], p[_WB], p[_H]
+    lr = wb - lf
     u = v * v
-    normal = m * 9.81 + cl * u
+    normal = m * 9.81 + p[_CL] * u
     grip = mu * normal
     lateral = m * u * abs(k)
     rem = grip * grip - lateral * lateral
     rem = math.sqrt(rem) if rem > 0.0 else 0.0
-    resist = cd * u + crr * normal
+    load = normal / (m * 9.81)
+    cornering = (_axle_drag(lateral * lr / wb, grip * lr / wb, p[_CF] * load)
+                 + _axle_drag(lateral * lf / wb, grip * lf / wb, p[_CR] * load))
+    resist = p[_CD] * u + p[_CRR] * normal + cornering
     if sign > 0:
         pos = v / step
         i = int(pos)
@@ -170,20 +208,20 @@ def _net_accel(v, k, sign, m, mu, cl, cd, crr, lf, wb, h, brake_max, bias, cutof
         traction = mu * (normal * lf - h * resist) / denom if denom > 0.0 else grip
         force = min(drive, rem, traction)
         return (force - resist) / m
-    lr = wb - lf
+    bias, brake_max = p[_BIAS], p[_BRAKE]
     ellipse = rem / grip if grip > 0.0 else 0.0
     front_den = bias * wb - mu * h
     front = mu * (normal * lr + resist * h) / front_den if front_den > 0.0 else brake_max
     rear = mu * (normal * lf - resist * h) / ((1.0 - bias) * wb + mu * h)
-    force = scale * min(brake_max, rem, ellipse * min(front, rear))
+    force = p[_BSCALE] * min(brake_max, rem, ellipse * min(front, rear))
+    cutoff = p[_CUTOFF]
     if cutoff > 0.0 and grip > 0.0:
         force *= max(0.0, 1.0 - lateral / grip / cutoff)
     return (force + resist) / m
 
 
 @numba.njit(cache=True)
-def _pass(ds, kappa, vmax, forward, closed, v_start, m, mu, cl, cd, crr, lf, wb, h, brake_max,
-          bias, cutoff, scale, grid, step):
+def _pass(ds, kappa, vmax, forward, closed, v_start, p, grid, step):
     """One direction of the QSS method; two laps when closed so the start is consistent."""
     n = ds.shape[0]
     out = np.empty(n)
@@ -217,11 +255,9 @@ def _pass(ds, kappa, vmax, forward, closed, v_start, m, mu, cl, cd, crr, lf, wb,
             sign = -1.0
         # Heun's method on u = v^2 (du/ds = 2a): exact for constant acceleration and
         # second-order accurate with drag, which the closed-form tests check.
-        a0 = _net_accel(v, kappa[i], sign, m, mu, cl, cd, crr, lf, wb, h, brake_max, bias, cutoff,
-                        scale, grid, step)
+        a0 = _net_accel(v, kappa[i], sign, p, grid, step)
         u_pred = max(v * v + 2.0 * a0 * seg, 0.0)
-        a1 = _net_accel(math.sqrt(u_pred), kappa[nxt], sign, m, mu, cl, cd, crr, lf, wb, h,
-                        brake_max, bias, cutoff, scale, grid, step)
+        a1 = _net_accel(math.sqrt(u_pred), kappa[nxt], sign, p, grid, step)
         u_new = max(v * v + (a0 + a1) * seg, 0.0)
         v = min(math.sqrt(u_new), vmax[nxt])
     return out
@@ -231,11 +267,7 @@ def _run_pass(model: CarModel, ds, kappa, vmax, forward: bool, closed: bool, v_s
     return _pass(
         np.ascontiguousarray(ds, dtype=float), np.ascontiguousarray(kappa, dtype=float),
         np.ascontiguousarray(vmax, dtype=float), forward, closed, float(v_start),
-        model.mass_kg, model.mu, model.downforce_coef, model.drag_coef,
-        model.rolling_resistance, model.cg_to_front_m, model.wheelbase_m, model.cg_height_m,
-        model.max_brake_force_n, model.brake_bias_front, model.brake_lateral_cutoff,
-        model.brake_scale,
-        model.drive_force_grid_n, _DRIVE_GRID_STEP_MPS,
+        model.packed(), model.drive_force_grid_n, _DRIVE_GRID_STEP_MPS,
     )
 
 
@@ -322,6 +354,19 @@ def top_speed_mps(car: CarParams | None = None) -> float:
                - car.rolling_resistance * car.normal_force_n(speeds))
     negative = np.nonzero(surplus <= 0)[0]
     return float(speeds[negative[0]]) if negative.size else SPEED_CAP_MPS
+
+
+def cornering_drag_n(car: CarParams, speed_mps: float, lateral_force_n: float) -> float:
+    """The tyres' drag while they carry ``lateral_force_n`` (the QSS passes' rule)."""
+    normal = float(car.normal_force_n(speed_mps))
+    load = normal / (car.mass_kg * GRAVITY_MPS2)
+    lf, wb = car.cg_to_front_m, car.wheelbase_m
+    grip = car.mu * normal
+    return float(
+        _axle_drag(lateral_force_n * (wb - lf) / wb, grip * (wb - lf) / wb,
+                   car.cornering_stiffness_front_n_per_rad * load)
+        + _axle_drag(lateral_force_n * lf / wb, grip * lf / wb,
+                     car.cornering_stiffness_rear_n_per_rad * load))
 
 
 def brake_force_limit_n(car: CarParams, speed_mps: float, lateral_force_n: float = 0.0,

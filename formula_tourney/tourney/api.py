@@ -441,11 +441,17 @@ def _bkey(job: Job) -> tuple[str, str, str, str]:
 def collect_results(store: Store, spec: Tournament) -> dict[str, Any]:
     """The tournament's state as plain data: parts with rankings, failures, baselines."""
     parts = []
-    for name in [p.name for p in spec.parts]:
+    baselines = store.baseline_rows()
+    for part_spec in spec.parts:
+        name = part_spec.name
         row = store.part(name) or {"part": name, "status": "pending"}
         jobs = store.job_rows(name)
+        track = part_spec.train_tracks[0]
+        limits = [b["reference_limit_s"] for b in baselines
+                  if b["track"] == track and b["reference_limit_s"] is not None]
         parts.append({
             "part": name, "study": row.get("study"), "status": row.get("status"),
+            "train_track": track, "reference_limit_s": limits[0] if limits else None,
             "reason": row.get("reason"), "entrants": row.get("entrants") or [],
             "promoted": row.get("promoted") or {}, "ranking": row.get("ranking") or [],
             "jobs": {s: sum(j["status"] == s for j in jobs)
@@ -456,13 +462,14 @@ def collect_results(store: Store, spec: Tournament) -> dict[str, Any]:
     general = store.general_models()
     return {
         "tournament": spec.name, "results": str(store.root), "parts": parts,
-        "failures": failures, "baselines": store.baseline_rows(),
+        "failures": failures, "baselines": baselines,
         "general_models": general.to_dict(orient="records") if not general.empty else [],
     }
 
 
 def render_results(console: Any, result: dict[str, Any]) -> None:
-    """Rich tables of a run's result: per part, entrants ranked by aLT with bLT and finish rate."""
+    """Rich tables of a run's result: per part, entrants ranked by aLT with bLT, the gap of bLT
+    to the train track's reference limit, and the finish rate."""
     from rich.table import Table
 
     if result.get("dry_run"):
@@ -471,17 +478,21 @@ def render_results(console: Any, result: dict[str, Any]) -> None:
     for part in result["parts"]:
         table = Table(title=f"{part['part']} ({part['study']}): {part['status']}"
                       + (f" - {part['reason']}" if part.get("reason") else ""))
-        for col in ("entrant", "family", "aLT s", "bLT s", "finished", "decision"):
-            table.add_column(col, justify="right" if col.endswith(("s", "finished")) else "left")
+        limit = part.get("reference_limit_s")
+        for col in ("entrant", "family", "aLT s", "bLT s", "gap", "finished", "decision"):
+            table.add_column(col, justify="right" if col.endswith(("s", "finished", "gap"))
+                             else "left")
         for row in part["ranking"]:
             table.add_row(
                 row["entrant"], row["family"], _fmt(row["aLT"]), _fmt(row["bLT"]),
-                f"{row['finished_seeds']}/{row['seeds']}", row.get("decision", ""),
+                _gap(row["bLT"], limit),
+                f"{row['finished_seeds']}/{row['seeds']}", row.get("decision") or "",
             )
         for base in result["baselines"]:
             if base["part"] == part["part"]:
                 table.add_row(f"{base['bot']} ({base['reference']}) @{base['track']}", "bot",
                               "", _fmt(base["best_lap_s"]),
+                              _gap(base["best_lap_s"], base["reference_limit_s"]),
                               "yes" if base["finished"] else base["status"],
                               f"limit {_fmt(base['reference_limit_s'])}")
         console.print(table)
@@ -521,6 +532,13 @@ def render_plan(console: Any, plan: dict[str, Any], results: str) -> None:
         )
         if part["baselines"]:
             console.print(f"    baselines {', '.join(part['baselines'])}")
+
+
+def _gap(lap_s: Any, limit_s: Any) -> str:
+    """Gap of a lap to the track's reference limit (QSS lap on the min-curvature line)."""
+    if lap_s is None or limit_s is None or lap_s != lap_s or not limit_s:
+        return "-"
+    return f"+{100.0 * (float(lap_s) / float(limit_s) - 1.0):.1f}%"
 
 
 def _fmt(value: Any) -> str:

@@ -37,8 +37,12 @@ def _nan_to_none(x: float) -> float | None:
 
 def load_tracks(names: list[str]) -> dict[str, Any]:
     """Load each named track once (unknown names raise UserInputError listing the known ones)."""
-    from formula_tourney.sim.catalog import load_track
-
+    try:
+        from formula_tourney.sim.catalog import load_track
+    except ImportError as err:
+        raise UserInputError(
+            f"track catalog (formula_tourney.sim.catalog) unavailable: {err}"
+        ) from None
     return {name: load_track(name) for name in dict.fromkeys(names)}
 
 
