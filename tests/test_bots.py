@@ -33,7 +33,7 @@ def test_follower_laps_cleanly_near_the_profile(lines, name, kind):
     assert result["damage"] == 0.0
     assert len(result["lap_times_s"]) == 2
     profile = lap_time_s(track, offsets)
-    # The QSS lap is a bound: the bot is slower, but within 15% of it (measured 6-11%).
+    # The QSS lap is a bound: the bot is slower, but within 15% of it (measured 7-9%).
     assert profile < result["best_lap_s"] < 1.15 * profile
     # Flying laps repeat: the second lap is within 3% of the first.
     first, second = result["lap_times_s"]
@@ -72,8 +72,8 @@ def test_follower_targets_and_config_checks(lines):
     assert bot.target_speed_mps(track.s_m[i]) == pytest.approx(bot.plan.speed_mps[i])
     # The margin is on corner speeds only; the slowest corner is planned at 90% of its limit.
     assert np.all(bot.target_mps <= 0.9 * bot.profile.corner_speed_mps + 1e-9)
-    slowest = int(np.argmin(bot.profile.speed_mps))
-    assert bot.target_mps[slowest] == pytest.approx(0.9 * bot.profile.speed_mps[slowest], rel=0.01)
+    assert np.all(bot.target_mps <= bot.profile.speed_mps + 1e-9)
+    assert bot.target_mps.min() < 0.95 * bot.profile.speed_mps.min()
     assert math.isclose(bot.profile.lap_time_s, lap_time_s(track, mincurv))
     with pytest.raises(UserInputError):
         FollowerConfig(speed_factor=-1.0).validate()
@@ -91,8 +91,8 @@ def test_technical_track_clean_and_near_the_limit():
     on_mincurv = drive(track, mincurv, laps=2)
     for result in (on_centre, on_mincurv):
         assert result["finished"] and result["damage"] == 0.0
-    # Measured: 71.6 s against a 65.6 s limit (+9%); the centre line's own QSS lap is 79.5 s.
-    assert limit < on_mincurv["best_lap_s"] < 1.12 * limit
+    # Measured: 72.2 s against a 66.9 s limit (+7.9%); the centre line's QSS lap is 79.9 s.
+    assert limit < on_mincurv["best_lap_s"] < 1.10 * limit
     assert on_centre["best_lap_s"] > lap_time_s(track, 0.0) > 1.1 * limit
 
 
