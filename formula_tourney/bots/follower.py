@@ -46,7 +46,7 @@ class FollowerConfig:
     speed_factor: float = 0.97
     """Share of the QSS corner speeds planned for: the margin for what the QSS model leaves
     out (load transfer, the tyre curve's falling side, 200 ms control)."""
-    preview_time_s: float = 0.6
+    preview_time_s: float = 0.8
     """Preview length of the lateral error law per m/s of speed."""
     min_preview_m: float = 8.0
     """Shortest preview length (low speed): below it the 200 ms step makes the law ring."""

@@ -115,9 +115,10 @@ def register(app: typer.Typer) -> None:
         rows = reference_table(loaded, laps)
 
         def render(console) -> None:
+            # A Markdown table (pasted into the README): never wrapped, never styled.
             console.print("| track | reference limit (s) | follower, centre (s) | follower, "
-                          "min-curvature (s) | genetic bot (s) |")
-            console.print("|---|---|---|---|---|")
+                          "min-curvature (s) | genetic bot (s) |", soft_wrap=True, markup=False)
+            console.print("|---|---|---|---|---|", soft_wrap=True, markup=False)
             for r in rows:
                 cells = []
                 for key in ("follower_centre", "follower_mincurv", "genetic"):
@@ -126,7 +127,7 @@ def register(app: typer.Typer) -> None:
                     cells.append(f"{_fmt(r[f'{key}_s'])} (+{_fmt(r[f'{key}_gap_pct'], 1)} %"
                                  f"{note})")
                 console.print(f"| {r['track']} | {_fmt(r['reference_limit_s'])} | "
-                              + " | ".join(cells) + " |")
+                              + " | ".join(cells) + " |", soft_wrap=True, markup=False)
 
         emit({"rows": [public(r) for r in rows]}, as_json, render)
 

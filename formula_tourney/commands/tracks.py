@@ -1,9 +1,188 @@
-"""CLI commands for tracks (filled in by the tracks work)."""
+"""CLI commands for tracks: ``tracks list``, ``tracks show``, ``tracks import``,
+``tracks generate``. Each parses arguments and calls the sim functions that do the work;
+every check that can fail runs before anything is written."""
 
 from __future__ import annotations
 
+import math
+from pathlib import Path
+from typing import Any
+
 import typer
+
+from formula_tourney.commands.output import emit, message
+from formula_tourney.errors import UserInputError
+
+JSON_HELP = "Print one JSON document on stdout."
+PLOT_HELP = "Write a track map (.png, .svg or .pdf)."
+
+
+def track_summary(track: Any) -> dict[str, Any]:
+    """What ``tracks show --json`` prints: the numbers that characterise a track."""
+    import numpy as np
+
+    radius = track.min_radius_m
+    return {
+        "name": track.name,
+        "source": track.source,
+        "length_m": round(float(track.length_m), 3),
+        "width_m": round(float(np.mean(track.width_m)), 3),
+        "min_radius_m": round(float(radius), 3) if math.isfinite(radius) else None,
+        "closure_error_m": float(track.closure_error_m),
+        "n_samples": int(track.n),
+        "segments": [dict(seg) for seg in track.segments],
+    }
+
+
+def _render_summary(summary: dict[str, Any]):
+    """Human view of a summary: headline numbers, then the segment table."""
+    from rich.table import Table
+
+    def render(console) -> None:
+        radius = summary["min_radius_m"]
+        console.print(
+            f"[bold]{summary['name']}[/bold]  {summary['length_m'] / 1000:.3f} km, "
+            f"{summary['width_m']:g} m wide, min radius "
+            f"{'-' if radius is None else f'{radius:.1f} m'}, closure error "
+            f"{summary['closure_error_m']:.2e} m  ({summary['source'] or 'built'})"
+        )
+        if summary.get("saved"):
+            console.print(f"saved to {summary['saved']}")
+        if summary.get("plot"):
+            console.print(f"plot written to {summary['plot']}")
+        table = Table(show_edge=False)
+        for col in ("#", "type", "s start (m)", "length (m)", "radius (m)", "angle (deg)",
+                    "end radius (m)"):
+            table.add_column(col, justify="right" if col != "type" else "left")
+        for k, seg in enumerate(summary["segments"], start=1):
+            arc = seg["type"] == "arc"
+            table.add_row(
+                str(k), seg["type"], f"{seg.get('s_start_m', 0.0):.1f}",
+                f"{seg.get('arc_length_m', seg.get('length_m', 0.0)):.1f}",
+                f"{seg['radius_m']:.1f}" if arc else "",
+                f"{seg['angle_deg']:+.1f}" if arc else "",
+                f"{seg['end_radius_m']:.1f}" if arc and "end_radius_m" in seg else "",
+            )
+        console.print(table)
+
+    return render
+
+
+def _check_save_name(name: str, force: bool, label: str) -> Path:
+    """Path for a user track named ``name``; refuses reserved names and silent overwrites."""
+    from formula_tourney.safeio import check_name
+    from formula_tourney.sim.catalog import BUILTIN_TRACKS, user_tracks_dir
+
+    check_name(name, "track name")
+    if name in BUILTIN_TRACKS:
+        raise UserInputError(f"{label}: {name!r} is a built-in track name; pick another --name")
+    target = user_tracks_dir() / f"{name}.toml"
+    if target.exists() and not force:
+        raise UserInputError(
+            f"{label}: user track {name!r} already exists ({target}); use --force to replace it"
+        )
+    return target
 
 
 def register(app: typer.Typer) -> None:
     """Add this area's commands to the main app."""
+    tracks_app = typer.Typer(help="Tracks: list, show, import from TORCS, generate.",
+                             no_args_is_help=True)
+    app.add_typer(tracks_app, name="tracks")
+
+    @tracks_app.command("list")
+    def list_cmd(
+        as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
+    ) -> None:
+        """Built-in tracks and the user's tracks folder, with lengths and widths."""
+        from formula_tourney.sim.catalog import list_tracks, user_tracks_dir
+
+        rows = list_tracks()
+        folder = str(user_tracks_dir())
+
+        def render(console) -> None:
+            from rich.table import Table
+
+            table = Table(show_edge=False)
+            for col in ("name", "length (km)", "width (m)", "source"):
+                table.add_column(col, justify="left" if col in ("name", "source") else "right")
+            for row in rows:
+                if "error" in row:
+                    table.add_row(row["name"], "-", "-", f"[red]{row['error']}[/red]")
+                    continue
+                table.add_row(row["name"], f"{row['length_m'] / 1000:.3f}",
+                              f"{row['width_m']:g}", row["source"])
+            console.print(table)
+            console.print(f"user tracks folder: {folder}; generated: gen-<seed>")
+
+        emit({"tracks": rows, "user_tracks_dir": folder}, as_json, render)
+
+    @tracks_app.command("show")
+    def show_cmd(
+        name: str = typer.Argument(..., help="Track name (oval, technical, flowing, a user "
+                                   "track, gen-<seed>) or a .toml/.xml path."),
+        plot: Path | None = typer.Option(None, "--plot", help=PLOT_HELP),
+        as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
+    ) -> None:
+        """Length, width, minimum radius, closure error and segments of a track."""
+        from formula_tourney.sim.catalog import load_track
+        from formula_tourney.sim.plot import check_plot_path, plot_tracks
+
+        if plot is not None:
+            check_plot_path(plot)
+        track = load_track(name)
+        summary = track_summary(track)
+        if plot is not None:
+            summary["plot"] = str(plot_tracks(track, plot))
+        emit(summary, as_json, _render_summary(summary))
+
+    @tracks_app.command("import")
+    def import_cmd(
+        file: Path = typer.Argument(..., help="TORCS track XML file."),
+        name: str | None = typer.Option(None, "--name", help="Track name (default: the file "
+                                        "name without .xml)."),
+        force: bool = typer.Option(False, "--force", help="Replace a user track of that name."),
+        as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
+    ) -> None:
+        """Convert a TORCS track XML to TOML in the user's tracks folder."""
+        from formula_tourney.sim.catalog import load_track
+        from formula_tourney.sim.torcs import import_torcs_track
+
+        if file.suffix.lower() != ".xml":
+            raise UserInputError(f"{file}: expected a TORCS .xml track file")
+        written = import_torcs_track(file, name, overwrite=force)
+        track = load_track(written)
+        summary = {**track_summary(track), "name": written.stem, "saved": str(written)}
+        if not as_json:
+            message(f"imported {file} as {written.stem!r}")
+        emit(summary, as_json, _render_summary(summary))
+
+    @tracks_app.command("generate")
+    def generate_cmd(
+        seed: int = typer.Option(..., "--seed", help="Seed: the same seed gives the same track "
+                                 "(also loadable anywhere as gen-<seed>)."),
+        save: bool = typer.Option(False, "--save", help="Also store it as a user track TOML."),
+        name: str | None = typer.Option(None, "--name", help="Name for --save (default "
+                                        "gen-<seed>)."),
+        force: bool = typer.Option(False, "--force", help="Replace a user track of that name."),
+        plot: Path | None = typer.Option(None, "--plot", help=PLOT_HELP),
+        as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
+    ) -> None:
+        """A procedural track: closed, non-overlapping, 1.5-4 km, 8-14 m wide, radii >= 12 m."""
+        from formula_tourney.safeio import atomic_write_text
+        from formula_tourney.sim.generate import generate_spec
+        from formula_tourney.sim.plot import check_plot_path, plot_tracks
+        from formula_tourney.sim.segments import spec_to_toml
+
+        if name is not None and not save:
+            raise UserInputError("--name only applies with --save")
+        if plot is not None:
+            check_plot_path(plot)
+        target = _check_save_name(name or f"gen-{seed}", force, "--save") if save else None
+        spec, track = generate_spec(seed, name=name)
+        summary = track_summary(track)
+        if target is not None:
+            summary["saved"] = str(atomic_write_text(target, spec_to_toml(spec)))
+        if plot is not None:
+            summary["plot"] = str(plot_tracks(track, plot))
+        emit(summary, as_json, _render_summary(summary))

@@ -31,7 +31,7 @@ from formula_tourney.sim.track import Track
 LINE_KINDS: tuple[str, ...] = ("centre", "mincurv", "recorded", "genetic")
 """centre = the paper's MOT; recorded = the paper's RC (the line the Tita bot drove)."""
 
-ALGORITHM_VERSION = 1
+ALGORITHM_VERSION = 2
 """Bump when a line's algorithm changes: old cache entries then stop matching."""
 
 CACHE_ENV_VAR = "FORMULA_TOURNEY_CACHE_DIR"

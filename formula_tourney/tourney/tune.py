@@ -207,13 +207,22 @@ def _storage(url: str | None, journal: Path, max_retry: int) -> Any:
         journal.parent.mkdir(parents=True, exist_ok=True)
         return JournalStorage(JournalFileBackend(str(journal)))
     if url.startswith(("sqlite:", "postgresql", "mysql")):
+        import inspect
+        import warnings
+
         callback_cls = getattr(optuna.storages, "RetryHeartbeatStaleTrialCallback", None) or (
             optuna.storages.RetryFailedTrialCallback
         )
-        return optuna.storages.RDBStorage(
-            url, heartbeat_interval=HEARTBEAT_INTERVAL_S, grace_period=HEARTBEAT_GRACE_S,
-            failed_trial_callback=callback_cls(max_retry=max_retry),
-        )
+        # Optuna 4.9 renamed failed_trial_callback to heartbeat_stale_trial_callback.
+        params = inspect.signature(optuna.storages.RDBStorage).parameters
+        key = ("heartbeat_stale_trial_callback" if "heartbeat_stale_trial_callback" in params
+               else "failed_trial_callback")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+            return optuna.storages.RDBStorage(
+                url, heartbeat_interval=HEARTBEAT_INTERVAL_S, grace_period=HEARTBEAT_GRACE_S,
+                **{key: callback_cls(max_retry=max_retry)},
+            )
     return url  # e.g. a gRPC proxy; Optuna parses it
 
 

@@ -1,0 +1,335 @@
+"""TORCS track XML import: the ``Main Track`` segments become a :class:`TrackSpec`.
+
+A TORCS track file is a ``<params>`` document; what we read is::
+
+    <section name="Main Track">
+      <attnum name="width" unit="m" val="15"/>
+      <section name="Track Segments">           (older files: "segments")
+        <section name="s1">
+          <attstr name="type" val="str"/>  <attnum name="lg" unit="ft" val="300"/>
+        </section>
+        <section name="t1">
+          <attstr name="type" val="lft"/>  <attnum name="radius" unit="m" val="50"/>
+          <attnum name="end radius" unit="m" val="30"/>   (optional: a spiral)
+          <attnum name="arc" unit="deg" val="90"/>
+        </section>
+
+Like TORCS' own ``trackgen``, numbers without a unit are SI (metres, radians), a turn is
+``arc * (radius + end radius) / 2`` long, and the start line is the start of the first segment.
+Elevation, banking, borders, sides and pits are ignored (the simulator is flat).
+
+Safety: real files begin with a DOCTYPE that declares *external* entities, e.g.
+``<!ENTITY default-surfaces SYSTEM "../../../data/tracks/surfaces.xml">``, used in the body as
+``&default-surfaces;``. Nothing external is ever read: the DOCTYPE is cut out by a small scanner
+here, references to external entities are dropped, and the rest is parsed by defusedxml with DTDs
+forbidden. Internal entity definitions (the stuff of "billion laughs" bombs) and parameter
+entities are refused outright rather than expanded.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+from formula_tourney.errors import UserInputError
+from formula_tourney.safeio import atomic_write_text, check_name
+from formula_tourney.sim.segments import (
+    MAX_WIDTH_M,
+    MIN_WIDTH_M,
+    SegmentSpec,
+    TrackSpec,
+    build_track,
+    parse_spec,
+    spec_to_toml,
+)
+from formula_tourney.sim.track import Track
+
+MAX_FILE_BYTES = 8 * 1024 * 1024
+"""Real TORCS track files are tens of kB; anything this large is not a track."""
+
+DEFAULT_WIDTH_M = 15.0
+"""TORCS' own default when ``Main Track`` has no ``width``."""
+
+LENGTH_UNITS = {"": 1.0, "m": 1.0, "ft": 0.3048, "feet": 0.3048, "km": 1000.0, "cm": 0.01,
+                "mm": 0.001, "in": 0.0254, "%": 0.01}
+ANGLE_UNITS = {"": 1.0, "rad": 1.0, "deg": math.pi / 180.0, "%": 0.01}
+"""Unit factors to SI, as TORCS' GfParm applies them (``%`` divides by 100)."""
+
+PREDEFINED_ENTITIES = {"amp", "lt", "gt", "quot", "apos"}
+_ENTITY_REF = re.compile(r"&([A-Za-z_][A-Za-z0-9._\-:]*);")
+_DECL = re.compile(r"<!ENTITY\s+(%\s+)?([^\s>]+)\s+(SYSTEM|PUBLIC|[\"'])", re.IGNORECASE)
+
+
+def read_torcs_spec(path: str | Path, name: str | None = None) -> TrackSpec:
+    """Parse a TORCS track file into a spec (not built yet: see :func:`load_torcs_track`)."""
+    path = Path(path)
+    label = str(path)
+    try:
+        size = path.stat().st_size
+    except FileNotFoundError:
+        raise UserInputError(f"{label}: track file not found") from None
+    except OSError as err:
+        raise UserInputError(f"{label}: cannot read track file ({err})") from None
+    if size > MAX_FILE_BYTES:
+        raise UserInputError(f"{label}: {size} bytes is too large for a TORCS track file")
+    try:
+        raw = path.read_bytes()
+    except OSError as err:
+        raise UserInputError(f"{label}: cannot read track file ({err})") from None
+    root = parse_xml_safely(raw, label)
+    track_name = name or _default_name(path)
+    check_name(track_name, f"track name for {label}")
+    return _spec_from_root(root, label, track_name)
+
+
+def load_torcs_track(path: str | Path, name: str | None = None) -> Track:
+    """Build a TORCS file's main track; refused like any track if it misses closure by > 1 m."""
+    spec = read_torcs_spec(path, name)
+    return _build(spec, str(path))
+
+
+def import_torcs_track(path: str | Path, name: str | None = None, *,
+                       overwrite: bool = False) -> Path:
+    """Convert a TORCS file to our TOML in the user's track folder; returns the written path.
+
+    Everything is checked first: the file parses, the track closes and does not overlap, the
+    TOML we are about to write loads back to the same track, and the name is free (built-in
+    names and ``gen-<seed>`` are reserved because ``load_track`` resolves them first).
+    """
+    from formula_tourney.sim.catalog import BUILTIN_TRACKS, GENERATED_PATTERN, user_tracks_dir
+
+    spec = read_torcs_spec(path, name)
+    if spec.name in BUILTIN_TRACKS or GENERATED_PATTERN.match(spec.name):
+        raise UserInputError(
+            f"{path}: track name {spec.name!r} is reserved (built-in or gen-<seed>); "
+            "pick another with --name"
+        )
+    target = user_tracks_dir() / f"{spec.name}.toml"
+    if target.exists() and not overwrite:
+        raise UserInputError(
+            f"{path}: a user track {spec.name!r} already exists ({target}); use --force to "
+            "replace it or --name to pick another name"
+        )
+    track = _build(spec, str(path))
+    text = spec_to_toml(spec)
+    again = build_track(parse_spec(text, str(target)), str(target))
+    if abs(again.length_m - track.length_m) > 1e-6:  # pragma: no cover - repr round-trips
+        raise RuntimeError(f"TOML round trip changed the length of {spec.name}")
+    return atomic_write_text(target, text)
+
+
+def _build(spec: TrackSpec, label: str) -> Track:
+    try:
+        return build_track(spec, label, source=label)
+    except UserInputError as err:
+        if "does not close" in str(err):
+            raise UserInputError(
+                f"{err}; TORCS closes such gaps itself, we refuse tracks that miss by more "
+                "than 1 m (fix the segment lengths or angles)"
+            ) from None
+        raise
+
+
+def _default_name(path: Path) -> str:
+    """The file stem, made path-safe (TORCS names like ``e-track-1`` pass unchanged)."""
+    stem = re.sub(r"[^A-Za-z0-9_.+-]+", "-", path.stem).strip("-.") or "torcs-track"
+    return stem[:128]
+
+
+# --------------------------------------------------------------------------------------------
+# Safe XML
+# --------------------------------------------------------------------------------------------
+
+
+def parse_xml_safely(raw: bytes, label: str):
+    """Parse TORCS XML without resolving anything external and without entity expansion.
+
+    The bytes are scanned as latin-1 (a 1:1 byte mapping, so UTF-8 content passes through
+    unchanged) to cut the DOCTYPE; the cleaned bytes then go to defusedxml with DTDs forbidden,
+    so if the scanner ever missed a DOCTYPE the parser refuses instead of expanding it.
+    """
+    import defusedxml.ElementTree as SafeET
+    from defusedxml import DefusedXmlException
+
+    text = raw.decode("latin-1")
+    text, _external = _strip_doctype(text, label)
+
+    def drop(match: re.Match) -> str:
+        # External entities are never fetched; undeclared ones could not be resolved either.
+        # Both are dropped, which is what a non-validating reader without the DTD would see.
+        return match.group(0) if match.group(1) in PREDEFINED_ENTITIES else ""
+
+    body = _ENTITY_REF.sub(drop, text)
+    try:
+        return SafeET.fromstring(body.encode("latin-1"), forbid_dtd=True,
+                                 forbid_entities=True, forbid_external=True)
+    except DefusedXmlException as err:
+        raise UserInputError(f"{label}: refused unsafe XML ({type(err).__name__})") from None
+    except SafeET.ParseError as err:
+        raise UserInputError(f"{label}: malformed XML: {err}") from None
+
+
+def _strip_doctype(text: str, label: str) -> tuple[str, set[str]]:
+    """Remove the DOCTYPE; return the text and the names of the external entities it declared.
+
+    Internal entities (``<!ENTITY x "...">``) and parameter entities (``<!ENTITY % x ...>``) are
+    refused: the first are how entity bombs expand, the second pull in further DTD text.
+    """
+    start = text.find("<!DOCTYPE")
+    if start < 0:
+        if re.search(r"<!ENTITY", text, re.IGNORECASE):
+            raise UserInputError(f"{label}: entity declaration outside a DOCTYPE")
+        return text, set()
+    if text.find("<!DOCTYPE", start + 1) >= 0:
+        raise UserInputError(f"{label}: more than one DOCTYPE")
+    end = _doctype_end(text, start, label)
+    doctype = text[start:end]
+    line = text.count("\n", 0, start) + 1
+    external: set[str] = set()
+    declared = 0
+    for match in _DECL.finditer(doctype):
+        declared += 1
+        param, entity, kind = match.group(1), match.group(2), match.group(3).upper()
+        where = f"{label}, line {line + doctype.count(chr(10), 0, match.start())}"
+        if param:
+            raise UserInputError(f"{where}: parameter entity %{entity}; is refused")
+        if kind not in ("SYSTEM", "PUBLIC"):
+            raise UserInputError(
+                f"{where}: internal entity definition {entity!r} is refused (entity expansion "
+                "can blow up: 'billion laughs')"
+            )
+        external.add(entity)
+    if declared != len(re.findall(r"<!ENTITY", doctype, re.IGNORECASE)):
+        raise UserInputError(f"{label}, line {line}: unreadable ENTITY declaration in DOCTYPE")
+    return text[:start] + text[end:], external
+
+
+def _doctype_end(text: str, start: int, label: str) -> int:
+    """Index just past the DOCTYPE's closing ``>``, skipping quoted strings and ``[...]``."""
+    depth = 0
+    quote = ""
+    i = start + len("<!DOCTYPE")
+    while i < len(text):
+        ch = text[i]
+        if quote:
+            if ch == quote:
+                quote = ""
+        elif ch in "\"'":
+            quote = ch
+        elif text.startswith("<!--", i):
+            close = text.find("-->", i + 4)
+            if close < 0:
+                break
+            i = close + 3
+            continue
+        elif ch == "[":
+            depth += 1
+        elif ch == "]":
+            depth -= 1
+        elif ch == ">" and depth == 0:
+            return i + 1
+        i += 1
+    line = text.count("\n", 0, start) + 1
+    raise UserInputError(f"{label}, line {line}: unterminated DOCTYPE")
+
+
+# --------------------------------------------------------------------------------------------
+# TORCS params -> TrackSpec
+# --------------------------------------------------------------------------------------------
+
+
+def _section(parent, name: str):
+    """Child ``<section name=...>`` (case-insensitive, as TORCS compares names)."""
+    for child in parent:
+        if child.tag == "section" and child.get("name", "").strip().lower() == name.lower():
+            return child
+    return None
+
+
+def _attr(section, name: str):
+    for child in section:
+        if child.tag in ("attnum", "attstr") and child.get("name", "").strip().lower() == name:
+            return child
+    return None
+
+
+def _num(section, name: str, units: dict[str, float], where: str, default: float | None = None,
+         ) -> float | None:
+    """An ``attnum`` in SI units; a missing one gives ``default``."""
+    node = _attr(section, name)
+    if node is None:
+        return default
+    raw = node.get("val")
+    unit = (node.get("unit") or "").strip()
+    try:
+        value = float(raw) if raw is not None else math.nan
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        raise UserInputError(f"{where}: {name!r} must be a finite number, got {raw!r}")
+    factor = units.get(unit) if unit in units else units.get(unit.lower())
+    if factor is None:
+        raise UserInputError(
+            f"{where}: {name!r} has unit {unit!r}; known: "
+            f"{', '.join(u for u in units if u) or 'none'}"
+        )
+    return value * factor
+
+
+def _spec_from_root(root, label: str, name: str) -> TrackSpec:
+    if root.tag != "params":
+        raise UserInputError(f"{label}: not a TORCS params file (root element <{root.tag}>)")
+    main = _section(root, "Main Track")
+    if main is None:
+        raise UserInputError(f"{label}: no <section name=\"Main Track\">")
+    width = _num(main, "width", LENGTH_UNITS, f"{label}: Main Track", DEFAULT_WIDTH_M)
+    if not MIN_WIDTH_M <= width <= MAX_WIDTH_M:
+        raise UserInputError(
+            f"{label}: Main Track width {width:g} m is outside [{MIN_WIDTH_M:g}, {MAX_WIDTH_M:g}]"
+        )
+    segs = _section(main, "Track Segments")
+    if segs is None:
+        segs = _section(main, "segments")
+    if segs is None:
+        raise UserInputError(f"{label}: Main Track has no <section name=\"Track Segments\">")
+    raw_segments = [c for c in segs if c.tag == "section"]
+    if not raw_segments:
+        raise UserInputError(f"{label}: Track Segments is empty")
+    half = width / 2.0
+    out: list[SegmentSpec] = []
+    for k, sec in enumerate(raw_segments, start=1):
+        seg_name = sec.get("name", f"#{k}")
+        where = f"{label}: segment {k} ({seg_name!r})"
+        node = _attr(sec, "type")
+        kind = (node.get("val") or "").strip().lower() if node is not None else ""
+        if kind == "str":
+            length = _num(sec, "lg", LENGTH_UNITS, where)
+            if length is None or length <= 0:
+                raise UserInputError(f"{where}: a straight needs a positive 'lg'")
+            out.append(SegmentSpec("straight", length_m=length, name=seg_name))
+        elif kind in ("lft", "rgt"):
+            radius = _num(sec, "radius", LENGTH_UNITS, where)
+            arc = _num(sec, "arc", ANGLE_UNITS, where)
+            end = _num(sec, "end radius", LENGTH_UNITS, where)
+            if radius is None or radius <= 0:
+                raise UserInputError(f"{where}: a turn needs a positive 'radius'")
+            if arc is None or not 0 < arc <= 2 * math.pi:
+                raise UserInputError(f"{where}: a turn needs an 'arc' in (0, 360] deg")
+            if end is not None and end <= 0:
+                raise UserInputError(f"{where}: 'end radius' must be positive")
+            if min(radius, end if end is not None else radius) <= half:
+                raise UserInputError(
+                    f"{where}: radius {min(radius, end or radius):g} m is not larger than the "
+                    f"half-width {half:g} m"
+                )
+            sign = 1.0 if kind == "lft" else -1.0
+            end_r = None if end is None or abs(end - radius) < 1e-9 else end
+            out.append(SegmentSpec("arc", radius_m=radius, angle_deg=sign * math.degrees(arc),
+                                   end_radius_m=end_r, name=seg_name))
+        else:
+            raise UserInputError(
+                f"{where}: 'type' must be str, lft or rgt, got {kind or 'nothing'!r}"
+            )
+    return TrackSpec(name=name, width_left_m=half, width_right_m=half, segments=out,
+                     description=f"imported from TORCS file {Path(label).name}")

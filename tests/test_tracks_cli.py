@@ -1,0 +1,153 @@
+"""``formula-tourney tracks ...``: list, show, import, generate; --json; bad input -> exit 2
+with a one-line message naming the file, and nothing written."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+from test_tracks_torcs import BOMB, stadium_segments, torcs_xml
+
+from formula_tourney.cli import main
+
+
+@pytest.fixture(autouse=True)
+def data_dir(tmp_path, monkeypatch):
+    folder = tmp_path / "data"
+    monkeypatch.setenv("FORMULA_TOURNEY_DATA_DIR", str(folder))
+    return folder
+
+
+def run(capsys, *args: str) -> tuple[int, str, str]:
+    try:
+        main(list(args))
+        code = 0
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def run_json(capsys, *args: str):
+    code, out, err = run(capsys, *args, "--json")
+    assert code == 0, err
+    return json.loads(out)
+
+
+def test_list_json_shows_built_ins(capsys, data_dir):
+    doc = run_json(capsys, "tracks", "list")
+    rows = {row["name"]: row for row in doc["tracks"]}
+    assert list(rows) == ["oval", "technical", "flowing"]
+    assert rows["oval"]["length_m"] == pytest.approx(2372.9, abs=0.1)
+    assert rows["technical"]["width_m"] == 10.0
+    assert doc["user_tracks_dir"] == str(data_dir / "tracks")
+
+
+def test_show_json_and_plot(capsys, tmp_path):
+    plot = tmp_path / "tech.png"
+    doc = run_json(capsys, "tracks", "show", "technical", "--plot", str(plot))
+    assert doc["name"] == "technical"
+    assert doc["length_m"] == pytest.approx(2527.4, abs=0.1)
+    assert doc["width_m"] == 10.0
+    assert doc["min_radius_m"] == pytest.approx(12.0)
+    assert doc["closure_error_m"] < 0.01
+    assert len(doc["segments"]) == 19
+    assert sum(s["arc_length_m"] for s in doc["segments"]) == pytest.approx(doc["length_m"],
+                                                                           abs=1e-3)
+    assert doc["plot"] == str(plot) and plot.read_bytes()[:4] == b"\x89PNG"
+    code, out, _ = run(capsys, "tracks", "show", "oval")
+    assert code == 0 and "oval" in out and "2.373 km" in out
+
+
+def test_unknown_track_exit_2(capsys):
+    code, out, err = run(capsys, "tracks", "show", "nosuch", "--json")
+    assert code == 2 and out == ""
+    assert err.startswith("error: unknown track 'nosuch'; known tracks: oval, technical, flowing")
+    assert err.count("\n") == 1
+
+
+def test_malformed_toml_exit_2_names_file_and_writes_nothing(capsys, tmp_path):
+    bad = tmp_path / "broken.toml"
+    bad.write_text('width_m = 10\n[[segment]]\ntype = "straight"\nlength_m = \n')
+    plot = tmp_path / "broken.png"
+    code, out, err = run(capsys, "tracks", "show", str(bad), "--plot", str(plot), "--json")
+    assert code == 2 and out == ""
+    assert err.startswith(f"error: {bad}: invalid TOML") and "line 4" in err
+    assert not plot.exists()
+    wrong_key = tmp_path / "wrong.toml"
+    wrong_key.write_text('width_m = 10\n[[segment]]\ntype = "straight"\nlenght_m = 5\n')
+    code, _, err = run(capsys, "tracks", "show", str(wrong_key))
+    assert code == 2 and f"{wrong_key}, line 4" in err and "'lenght_m'" in err
+
+
+def test_non_closing_track_exit_2(capsys, tmp_path):
+    path = tmp_path / "open.toml"
+    path.write_text('width_m = 10\n[[segment]]\ntype = "straight"\nlength_m = 100\n'
+                    '[[segment]]\ntype = "arc"\nradius_m = 50\nangle_deg = 360\n')
+    code, _, err = run(capsys, "tracks", "show", str(path))
+    assert code == 2
+    assert f"{path}: track does not close: its end is 100.00 m from the start" in err
+
+
+def test_import_then_list_and_show(capsys, tmp_path, data_dir):
+    xml = tmp_path / "e-stadium.xml"
+    xml.write_text(torcs_xml(stadium_segments()))
+    doc = run_json(capsys, "tracks", "import", str(xml))
+    assert doc["name"] == "e-stadium"
+    assert doc["saved"] == str(data_dir / "tracks" / "e-stadium.toml")
+    assert doc["length_m"] == pytest.approx(400.0 + 2 * math.pi * 60.0, abs=1e-3)
+    names = [row["name"] for row in run_json(capsys, "tracks", "list")["tracks"]]
+    assert names == ["oval", "technical", "flowing", "e-stadium"]
+    shown = run_json(capsys, "tracks", "show", "e-stadium")
+    assert shown["length_m"] == doc["length_m"]
+    # Named import; a second import under a taken name is refused.
+    assert run_json(capsys, "tracks", "import", str(xml), "--name", "s2")["name"] == "s2"
+    code, _, err = run(capsys, "tracks", "import", str(xml), "--name", "s2")
+    assert code == 2 and "already exists" in err
+    code, _, err = run(capsys, "tracks", "import", str(xml), "--name", "../evil")
+    assert code == 2 and "invalid track name" in err
+
+
+def test_import_entity_bomb_exit_2_nothing_written(capsys, tmp_path, data_dir):
+    bomb = tmp_path / "bomb.xml"
+    bomb.write_text(BOMB)
+    code, out, err = run(capsys, "tracks", "import", str(bomb), "--json")
+    assert code == 2 and out == ""
+    assert f"error: {bomb}, line 3: internal entity definition 'lol' is refused" in err
+    assert not (data_dir / "tracks").exists()
+
+
+def test_generate_deterministic_save_and_plot(capsys, tmp_path, data_dir):
+    a = run_json(capsys, "tracks", "generate", "--seed", "7")
+    b = run_json(capsys, "tracks", "generate", "--seed", "7")
+    assert a == b
+    assert a["name"] == "gen-7" and 1500 <= a["length_m"] <= 4000
+    assert 8 <= a["width_m"] <= 14 and a["min_radius_m"] >= 12
+    assert a["closure_error_m"] < 1e-6
+    plot = tmp_path / "g7.svg"
+    saved = run_json(capsys, "tracks", "generate", "--seed", "7", "--save", "--plot", str(plot))
+    assert saved["saved"] == str(data_dir / "tracks" / "gen-7.toml")
+    assert plot.read_text().lstrip().startswith("<?xml")
+    rows = {r["name"]: r for r in run_json(capsys, "tracks", "list")["tracks"]}
+    assert rows["gen-7"]["length_m"] == pytest.approx(a["length_m"], abs=0.05)
+    assert run_json(capsys, "tracks", "show", "gen-7")["length_m"] == a["length_m"]
+    code, _, err = run(capsys, "tracks", "generate", "--seed", "7", "--save")
+    assert code == 2 and "already exists" in err
+
+
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        (("tracks", "generate", "--seed", "-1"), "seed must be an integer"),
+        (("tracks", "generate", "--seed", "1", "--plot", "x.jpg"), "--plot x.jpg"),
+        (("tracks", "generate", "--seed", "1", "--name", "x"), "--name only applies with --save"),
+        (("tracks", "generate", "--seed", "1", "--save", "--name", "oval"), "built-in"),
+        (("tracks", "import", "track.toml"), "expected a TORCS .xml"),
+        (("tracks", "import", "missing.xml"), "missing.xml: track file not found"),
+    ],
+)
+def test_bad_arguments_exit_2(capsys, data_dir, args, match):
+    code, out, err = run(capsys, *args)
+    assert code == 2 and match in err and out == ""
+    assert not (data_dir / "tracks").exists()
