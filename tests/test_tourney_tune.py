@@ -120,3 +120,20 @@ def test_study_resumes_and_retries_a_killed_trial(tmp_path: Path) -> None:
     written = tomllib.loads(target.read_text())["variants"]["WIN4"]["overrides"]
     assert written["actor_lr"] == best["params"]["actor_lr"]
     assert written["hidden"] == [32, 32]
+
+
+def test_rdb_storage_url_runs_with_heartbeats(tmp_path: Path) -> None:
+    """--storage URL (an RDB for many machines): same study, Optuna's heartbeats switched on."""
+    import optuna
+
+    path = tmp_path / "tune.toml"
+    path.write_text(TUNE, encoding="utf-8")
+    url = f"sqlite:///{tmp_path / 'studies.db'}"
+    result = run_tune(path, "MS2", trials=1, workers=1, storage=url,
+                      results_dir=tmp_path / "res", show_progress=False)
+    assert result["storage"] == url
+    assert result["counts"]["COMPLETE"] + result["counts"]["PRUNED"] == 1
+    storage = optuna.storages.RDBStorage(url)
+    study = optuna.load_study(study_name="tinytune-MS2", storage=storage)
+    assert len(study.get_trials()) == 1
+    assert not (tmp_path / "res" / "tinytune" / "optuna").exists()  # no journal file

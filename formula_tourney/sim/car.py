@@ -76,6 +76,7 @@ def pack_params(car: CarParams) -> CarArrays:
     p[K.P_WALL_E] = car.wall_restitution
     # Launch: the clutch holds the engine at its torque peak (no extra parameter needed).
     p[K.P_LAUNCH_RPM] = car.engine_rpm_points[int(np.argmax(car.engine_torque_points_nm))]
+    K.derive_params(p)  # inverses and ratios the hot path multiplies by
     torque = np.array([car.engine_rpm_points, car.engine_torque_points_nm], dtype=float)
     gears = np.array(car.gear_ratios, dtype=float)
     return CarArrays(p, np.ascontiguousarray(torque), gears)

@@ -87,7 +87,23 @@ P_STEER = 25
 P_WALL_DMG = 26
 P_WALL_E = 27
 P_LAUNCH_RPM = 28
-N_PARAMS = 29
+# Derived by :func:`derive_params` (the hot path multiplies by these instead of dividing).
+P_INV_M = 29
+P_INV_IZ = 30
+P_INV_RW = 31
+P_MG = 32  # weight, N
+P_LR_WB = 33  # cg_to_rear / wheelbase
+P_LF_WB = 34
+P_H_WB = 35  # cg height / wheelbase
+P_H_TW = 36  # cg height / track width
+P_CS_F = 37  # cornering stiffness per newton of static axle load, front and rear
+P_CS_R = 38
+P_TO_RPM = 39  # rpm per (rad/s of wheel x gear ratio)
+P_DRIVE_K = 40  # final drive x efficiency / wheel radius
+P_BRAKE_F = 41  # front and rear shares of the brake force, N
+P_BRAKE_R = 42
+P_REACH = 43  # half the body diagonal, m
+N_PARAMS = 44
 
 # --- track geometry columns --------------------------------------------------------------------
 G_X = 0
@@ -155,6 +171,10 @@ SPEED_SCALE_MPS = 300.0 / 3.6
 WHEEL_SCALE_RADPS = 250.0
 RPM_SCALE = 10000.0
 LAC_SCALE_M = 10.0
+# Ray angles relative to the heading (-90..90 deg every 10), as cos/sin tables.
+_RAY_COS = np.cos((np.arange(N_RAYS) - 9) * (math.pi / 18.0))
+_RAY_SIN = np.sin((np.arange(N_RAYS) - 9) * (math.pi / 18.0))
+_RAY_COS[9], _RAY_SIN[9] = 1.0, 0.0
 
 # Slip angles use max(|vx|, this) as denominator: below it the tyre acts as a damper, which keeps
 # the explicit integration stable at 100 Hz from standstill (C/(m*v)*dt < 1).
@@ -166,19 +186,35 @@ SLIP_STIFFNESS_PER_N = 20.0
 WALL_FRICTION = 0.5
 GRAVITY = 9.81
 TWO_PI = 2.0 * math.pi
+_FAST = {"nsz", "arcp", "contract", "afn", "reassoc"}
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
 def _wrap_angle(a: float) -> float:
     return (a + math.pi) % TWO_PI - math.pi
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
 def _clip(v: float, lo: float, hi: float) -> float:
     return lo if v < lo else (hi if v > hi else v)
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
+def _fiala(tan_alpha: float, stiffness: float, fmax: float, inv_fmax: float) -> float:
+    """:func:`fiala_lateral_force` for ``fmax > 0`` given ``1 / fmax``: one division fewer.
+
+    With ``q = C tan(alpha) / (3 fmax)`` the cubic is ``fmax (-3q + 3q|q| - q^3)``, sliding
+    (``-fmax sign q``) from ``|q| >= 1``.
+    """
+    q = stiffness * tan_alpha * inv_fmax * (1.0 / 3.0)
+    if q >= 1.0:
+        return -fmax
+    if q <= -1.0:
+        return fmax
+    return fmax * (q * (3.0 * abs(q) - 3.0 - q * q))
+
+
+@njit(cache=True, fastmath=_FAST, _nrt=False)
 def fiala_lateral_force(tan_alpha: float, stiffness: float, fmax: float) -> float:
     """Fiala brush tyre: cubic in slip up to full sliding at ``3 fmax / C``, then ``-fmax``.
 
@@ -186,16 +222,34 @@ def fiala_lateral_force(tan_alpha: float, stiffness: float, fmax: float) -> floa
     """
     if fmax <= 0.0:
         return 0.0
-    z = abs(tan_alpha)
-    z_slide = 3.0 * fmax / stiffness
-    if z >= z_slide:
-        return -fmax if tan_alpha > 0.0 else fmax
-    c = stiffness
-    return (-c * tan_alpha + c * c / (3.0 * fmax) * z * tan_alpha
-            - c * c * c / (27.0 * fmax * fmax) * tan_alpha * tan_alpha * tan_alpha)
+    return _fiala(tan_alpha, stiffness, fmax, 1.0 / fmax)
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_FAST, _nrt=False)
+def derive_params(p: np.ndarray) -> None:
+    """Fill the derived ``P_*`` slots (inverses, ratios) from the car's own parameters."""
+    m = p[P_MASS]
+    lf = p[P_LF]
+    lr = p[P_LR]
+    wb = lf + lr
+    p[P_INV_M] = 1.0 / m
+    p[P_INV_IZ] = 1.0 / p[P_IZ]
+    p[P_INV_RW] = 1.0 / p[P_RW]
+    p[P_MG] = m * GRAVITY
+    p[P_LR_WB] = lr / wb
+    p[P_LF_WB] = lf / wb
+    p[P_H_WB] = p[P_H] / wb
+    p[P_H_TW] = p[P_H] / p[P_TW]
+    p[P_CS_F] = p[P_CF] / (m * GRAVITY * lr / wb)
+    p[P_CS_R] = p[P_CR] / (m * GRAVITY * lf / wb)
+    p[P_TO_RPM] = p[P_FD] * 60.0 / TWO_PI
+    p[P_DRIVE_K] = p[P_FD] * p[P_EFF] / p[P_RW]
+    p[P_BRAKE_F] = p[P_BRAKE] * p[P_BIAS]
+    p[P_BRAKE_R] = p[P_BRAKE] * (1.0 - p[P_BIAS])
+    p[P_REACH] = 0.5 * math.sqrt(p[P_LEN] * p[P_LEN] + p[P_WID] * p[P_WID])
+
+
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
 def engine_torque(rpm: float, table: np.ndarray, redline: float) -> float:
     """Torque curve ``table[0]`` (rpm) -> ``table[1]`` (N m), linear, zero above the redline."""
     if rpm > redline:
@@ -210,7 +264,7 @@ def engine_torque(rpm: float, table: np.ndarray, redline: float) -> float:
     return table[1, k - 1]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
 def _seg_dist2(geom: np.ndarray, i: int, x: float, y: float):
     """Squared distance from a point to segment ``i`` and the clipped segment parameter."""
     ax = geom[i, G_X]
@@ -223,7 +277,7 @@ def _seg_dist2(geom: np.ndarray, i: int, x: float, y: float):
     return px * px + py * py, t
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
 def project(geom: np.ndarray, length: float, x: float, y: float, hint: int):
     """``(s, lateral, index)`` of a point: hill-climb from ``hint`` (global scan if < 0).
 
@@ -266,7 +320,7 @@ def project(geom: np.ndarray, length: float, x: float, y: float, hint: int):
     return s, lat, i
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
 def _ray_seg(ox, oy, dx, dy, ax, ay, bx, by):
     """Ray parameter where ray ``o + t d`` meets segment ``a-b``; inf if it does not."""
     ex = bx - ax
@@ -283,35 +337,34 @@ def _ray_seg(ox, oy, dx, dy, ax, ay, bx, by):
     return t
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
 def _side(ox: float, oy: float, dx: float, dy: float, px: float, py: float) -> float:
     """> 0 when point p lies left of the ray's line, < 0 right of it."""
     return dx * (py - oy) - dy * (px - ox)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
 def _section_side(geom: np.ndarray, k: int, px: float, py: float) -> float:
     """> 0 when point p lies ahead (in the driving direction) of the cross-section at ``k``."""
     return ((geom[k, G_RX] - geom[k, G_LX]) * (py - geom[k, G_LY])
             - (geom[k, G_RY] - geom[k, G_LY]) * (px - geom[k, G_LX]))
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_FAST, _nrt=False)
 def cast_ray(geom: np.ndarray, idx: int, ox: float, oy: float, ang: float, max_range: float):
-    """Distance along a ray to the asphalt edge, walking the corridor quad by quad.
+    """Distance along a ray at world angle ``ang`` to the asphalt edge (see :func:`_cast`)."""
+    return _cast(geom, _origin_quad(geom, idx, ox, oy), ox, oy, math.cos(ang), math.sin(ang),
+                 max_range)
 
-    Quad ``i`` spans samples ``i`` and ``i+1``. In the car's own quad the exit is found by
-    intersecting the ray with all four sides. After that the ray enters each quad through a
-    cross-section, and (quads being convex) leaves through the next cross-section exactly when
-    that section's two ends lie on opposite sides of the ray's line; otherwise through the side
-    edge whose ends straddle the line, the only exact intersection computed. Two cross products
-    per quad, and a straight run of quads (``G_RUN``) is crossed as one.
+
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
+def _origin_quad(geom: np.ndarray, idx: int, ox: float, oy: float) -> int:
+    """The quad between the two sections the point lies between, searched from ``idx``.
+
+    The nearest segment's quad need not contain the origin (sections are not the projection's
+    boundaries on a curve). The same for every ray of a car: computed once per observation.
     """
     n = geom.shape[0]
-    dx = math.cos(ang)
-    dy = math.sin(ang)
-    # The nearest segment's quad need not contain the origin (sections are not the projection's
-    # boundaries on a curve): step to the quad between the sections the origin lies between.
     i = idx
     for _ in range(4):
         j = i + 1 if i + 1 < n else 0
@@ -321,6 +374,23 @@ def cast_ray(geom: np.ndarray, idx: int, ox: float, oy: float, ang: float, max_r
             i = j
         else:
             break
+    return i
+
+
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
+def _cast(geom: np.ndarray, i: int, ox: float, oy: float, dx: float, dy: float,
+          max_range: float) -> float:
+    """Distance along the ray ``o + t (dx, dy)`` (unit direction) from quad ``i``, walking the
+    corridor quad by quad.
+
+    Quad ``i`` spans samples ``i`` and ``i+1``. In the car's own quad the exit is found by
+    intersecting the ray with all four sides. After that the ray enters each quad through a
+    cross-section, and (quads being convex) leaves through the next cross-section exactly when
+    that section's two ends lie on opposite sides of the ray's line; otherwise through the side
+    edge whose ends straddle the line, the only exact intersection computed. Two cross products
+    per quad, and a straight run of quads (``G_RUN``) is crossed as one.
+    """
+    n = geom.shape[0]
     j = i + 1 if i + 1 < n else 0
     best = np.inf
     kind = 0
@@ -376,10 +446,20 @@ def cast_ray(geom: np.ndarray, idx: int, ox: float, oy: float, ang: float, max_r
     return max_range
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
+def _small_rotation(d: float):
+    """``(cos d, sin d)`` by Taylor series for |d| <= 0.05 rad (error < 1e-19 there)."""
+    d2 = d * d
+    c = 1.0 - 0.5 * d2 * (1.0 - d2 * (1.0 / 12.0) * (1.0 - d2 * (1.0 / 30.0)
+                                                     * (1.0 - d2 * (1.0 / 56.0))))
+    s = d * (1.0 - d2 * (1.0 / 6.0) * (1.0 - d2 * (1.0 / 20.0) * (1.0 - d2 * (1.0 / 42.0))))
+    return c, s
+
+
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
 def physics_substep(st: np.ndarray, steer: float, cd: float, sd: float, throttle: float,
                     brake: float, p: np.ndarray, torque: np.ndarray, gears: np.ndarray,
-                    on_grass: bool, dt: float) -> None:
+                    on_grass: bool, dt: float, cp: float, sp: float):
     """Advance one car (``st`` = its state row) by ``dt``: dynamic single-track model.
 
     Tyres: Fiala lateral force per wheel on its own load (static + aero + load transfer from the
@@ -389,34 +469,38 @@ def physics_substep(st: np.ndarray, steer: float, cd: float, sd: float, throttle
     ``Fx^2 + Fy^2 <= (mu Fz)^2`` both are scaled back onto it. Wheel spins are quasi-static
     (slip ratio from force use): explicit wheel-rotation dynamics would need ~1 kHz to be
     stable, and the observation only needs spins that show slip and lock-up. ``cd``/``sd``
-    are cos/sin of the wheel angle, computed once per control step by the caller.
+    are cos/sin of the wheel angle, computed once per control step by the caller; ``cp``/``sp``
+    are cos/sin of the current yaw, and the function returns those of the new yaw.
+
+    Hot-path shape (kernel ~2.6 us per car-step for 20 substeps before, docs/sim.md "Speed"):
+    constants derived from the car once (``P_INV_*``, ``P_*_WB``, ``P_CS_*``: divisions cost
+    ~4x a multiply and LLVM cannot hoist loads past the stores to ``st``), one division in the
+    Fiala curve, and the yaw's cos/sin rotated by a Taylor series of ``r dt`` instead of two
+    libm calls per substep (~25 ns per sin+cos pair measured here).
     """
     m = p[P_MASS]
     lf = p[P_LF]
     lr = p[P_LR]
-    wb = lf + lr
-    tw = p[P_TW]
-    rw = p[P_RW]
+    half_tw = 0.5 * p[P_TW]
+    inv_rw = p[P_INV_RW]
     mu = p[P_MU_GRASS] if on_grass else p[P_MU]
     vx = st[ST_VX]
     vy = st[ST_VY]
     r = st[ST_R]
-    delta = steer * p[P_STEER]
-    st[ST_STEER] = delta
+    st[ST_STEER] = steer * p[P_STEER]
     v2 = vx * vx + vy * vy
-    v = math.sqrt(v2)
 
     # Normal loads: weight and downforce split by CG position, then load transfer.
-    fz_total = m * GRAVITY + p[P_CL] * v2
-    fz_front = fz_total * lr / wb - m * st[ST_AX] * p[P_H] / wb
+    fz_total = p[P_MG] + p[P_CL] * v2
+    fz_front = fz_total * p[P_LR_WB] - m * st[ST_AX] * p[P_H_WB]
     fz_rear = fz_total - fz_front
-    lat_tr = m * st[ST_AY] * p[P_H] / tw  # left accel (ay > 0) loads the right wheels
+    lat_tr = m * st[ST_AY] * p[P_H_TW]  # left accel (ay > 0) loads the right wheels
 
     # Engine and automatic gearbox (rear-wheel drive, rpm from the driven wheels).
     g = int(st[ST_GEAR])
     n_gears = gears.shape[0]
     w_drive = 0.5 * (st[ST_W_RL] + st[ST_W_RR])
-    to_rpm = p[P_FD] * 60.0 / TWO_PI
+    to_rpm = p[P_TO_RPM]
     rpm_wheel = abs(w_drive) * gears[g] * to_rpm
     if g < n_gears - 1 and rpm_wheel > p[P_UP]:
         g += 1
@@ -429,47 +513,49 @@ def physics_substep(st: np.ndarray, steer: float, cd: float, sd: float, throttle
         rpm = max(rpm, p[P_IDLE] + throttle * (p[P_LAUNCH_RPM] - p[P_IDLE]))
     rpm = max(rpm, p[P_IDLE])
     st[ST_RPM] = rpm
-    drive_total = (throttle * engine_torque(rpm, torque, p[P_REDLINE]) * gears[g] * p[P_FD]
-                   * p[P_EFF] / rw)
+    drive_total = 0.0
+    if throttle > 0.0:
+        drive_total = (throttle * engine_torque(rpm, torque, p[P_REDLINE]) * gears[g]
+                       * p[P_DRIVE_K])
 
     # Axles. Drive and brake forces are shared between an axle's wheels in proportion to their
     # loads (a limited-slip differential, an ideal left-right brake balance) and each wheel's
     # stiffness and grip scale with its load, so the axle force is exactly the sum of its two
     # wheels' Fiala forces: two tyre evaluations per substep instead of four.
     vy_front = vy + lf * r
-    half_tw = 0.5 * tw
     fx_body = 0.0
     fy_body = 0.0
     mz = 0.0
     for a in range(2):
         if a == 0:
-            fz_l = max(0.0, 0.5 * fz_front - lat_tr * lr / wb)
-            fz_r = max(0.0, 0.5 * fz_front + lat_tr * lr / wb)
+            fz_l = max(0.0, 0.5 * fz_front - lat_tr * p[P_LR_WB])
+            fz_r = max(0.0, 0.5 * fz_front + lat_tr * p[P_LR_WB])
             vxw = vx * cd + vy_front * sd
             vyw = -vx * sd + vy_front * cd
-            fx_dem = -brake * p[P_BRAKE] * p[P_BIAS] * _clip(vxw / 0.5, -1.0, 1.0)
-            c_static = p[P_CF] / (m * GRAVITY * lr / wb)
+            fx_dem = -brake * p[P_BRAKE_F] * _clip(vxw * 2.0, -1.0, 1.0)
+            c_static = p[P_CS_F]
         else:
-            fz_l = max(0.0, 0.5 * fz_rear - lat_tr * lf / wb)
-            fz_r = max(0.0, 0.5 * fz_rear + lat_tr * lf / wb)
+            fz_l = max(0.0, 0.5 * fz_rear - lat_tr * p[P_LF_WB])
+            fz_r = max(0.0, 0.5 * fz_rear + lat_tr * p[P_LF_WB])
             vxw = vx
             vyw = vy - lr * r
-            fx_dem = (drive_total
-                      - brake * p[P_BRAKE] * (1.0 - p[P_BIAS]) * _clip(vxw / 0.5, -1.0, 1.0))
-            c_static = p[P_CR] / (m * GRAVITY * lf / wb)
+            fx_dem = drive_total - brake * p[P_BRAKE_R] * _clip(vxw * 2.0, -1.0, 1.0)
+            c_static = p[P_CS_R]
         fz_ax = fz_l + fz_r
         fmax = mu * fz_ax
-        tan_a = vyw / max(abs(vxw), SLIP_MIN_SPEED_MPS)
-        fy0 = fiala_lateral_force(tan_a, c_static * fz_ax, fmax)
         fx = 0.0
         fy = 0.0
         kappa = 0.0
+        lr_share = 0.0
         if fmax > 0.0:
+            inv_f = 1.0 / fmax
+            tan_a = vyw / max(abs(vxw), SLIP_MIN_SPEED_MPS)
+            fy0 = _fiala(tan_a, c_static * fz_ax, fmax, inv_f)
             # Friction circle: a demand inside it is met; outside, the demanded (Fx, Fy) is
             # scaled back onto it, so a spinning or locked wheel keeps a share of its side
             # force instead of losing all of it (which made every launch a spin).
-            ux = fx_dem / fmax
-            uy = fy0 / fmax
+            ux = fx_dem * inv_f
+            uy = fy0 * inv_f
             u2 = ux * ux + uy * uy
             if u2 > 1.0:
                 scale = 1.0 / math.sqrt(u2)
@@ -479,19 +565,20 @@ def physics_substep(st: np.ndarray, steer: float, cd: float, sd: float, throttle
                 fx = fx_dem
                 fy = fy0
             # Quasi-static slip ratio: linear below the peak, growing with excess demand.
-            kappa = fx / (SLIP_STIFFNESS_PER_N * fz_ax)
-            if abs(fx_dem) > fmax:
-                excess = abs(fx_dem) / fmax - 1.0
+            inv_fz = 1.0 / fz_ax
+            kappa = fx * inv_fz * (1.0 / SLIP_STIFFNESS_PER_N)
+            if abs(ux) > 1.0:
+                excess = abs(ux) - 1.0
                 kappa += excess if fx_dem > 0.0 else -excess
+            lr_share = (fz_r - fz_l) * inv_fz
         for side in (-1.0, 1.0):  # left wheel (slower in a left turn), right wheel
             vx_c = vx + side * half_tw * r
             vxw_w = vx_c * cd + vy_front * sd if a == 0 else vx_c
-            omega = (vxw_w + kappa * max(abs(vxw_w), 1.0)) / rw
+            omega = (vxw_w + kappa * max(abs(vxw_w), 1.0)) * inv_rw
             if fx_dem < 0.0 and vxw_w >= 0.0 and omega < 0.0:
                 omega = 0.0  # locked, not spinning backwards
             st[ST_W_FL + 2 * a + (0 if side < 0.0 else 1)] = omega
         # Yaw moment of the unequal left/right longitudinal forces (shared by load).
-        lr_share = (fz_r - fz_l) / fz_ax if fz_ax > 0.0 else 0.0
         if a == 0:
             fxb = fx * cd - fy * sd
             fyb = fx * sd + fy * cd
@@ -504,39 +591,41 @@ def physics_substep(st: np.ndarray, steer: float, cd: float, sd: float, throttle
         fy_body += fyb
 
     # Aero drag ~ v^2 along the velocity, rolling resistance, grass drag.
-    if v > 1e-9:
-        drag = p[P_CD] * v
-        fx_body -= drag * vx
-        fy_body -= drag * vy
-    fx_body -= p[P_CRR] * fz_total * _clip(vx / 0.5, -1.0, 1.0)
+    drag = p[P_CD] * math.sqrt(v2)
+    fx_body -= drag * vx
+    fy_body -= drag * vy
+    fx_body -= p[P_CRR] * fz_total * _clip(vx * 2.0, -1.0, 1.0)
     if on_grass:
         fx_body -= p[P_GRASS_DRAG] * vx
         fy_body -= p[P_GRASS_DRAG] * vy
 
-    ax = fx_body / m
-    ay = fy_body / m
+    ax = fx_body * p[P_INV_M]
+    ay = fy_body * p[P_INV_M]
     st[ST_AX] = ax
     st[ST_AY] = ay
+    vx_old = vx
     vx += (ax + r * vy) * dt
-    vy += (ay - r * st[ST_VX]) * dt
-    r += mz / p[P_IZ] * dt
+    vy += (ay - r * vx_old) * dt
+    r += mz * p[P_INV_IZ] * dt
     st[ST_VX] = vx
     st[ST_VY] = vy
     st[ST_R] = r
-    psi = st[ST_PSI]
-    cp = math.cos(psi)
-    sp = math.sin(psi)
     st[ST_X] += (vx * cp - vy * sp) * dt
     st[ST_Y] += (vx * sp + vy * cp) * dt
-    psi += r * dt
+    dpsi = r * dt
+    psi = st[ST_PSI] + dpsi
     if psi > math.pi:
         psi -= TWO_PI
     elif psi < -math.pi:
         psi += TWO_PI
     st[ST_PSI] = psi
+    if abs(dpsi) <= 0.05:
+        c, s = _small_rotation(dpsi)
+        return cp * c - sp * s, sp * c + cp * s
+    return math.cos(psi), math.sin(psi)
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
 def wall_contact(st: np.ndarray, geom: np.ndarray, p: np.ndarray, grass_w: float) -> float:
     """Keep the car inside the walls; return the damage of an impact (0 if none).
 
@@ -549,7 +638,7 @@ def wall_contact(st: np.ndarray, geom: np.ndarray, p: np.ndarray, grass_w: float
     i = int(st[ST_IDX])
     lat = st[ST_LAT]
     # Far from both walls for any yaw (half diagonal of the body): skip the trigonometry.
-    reach = 0.5 * math.sqrt(p[P_LEN] * p[P_LEN] + p[P_WID] * p[P_WID])
+    reach = p[P_REACH]
     if lat + reach < geom[i, G_WL] + grass_w and -lat + reach < geom[i, G_WR] + grass_w:
         return 0.0
     th = geom[i, G_H]
@@ -618,7 +707,7 @@ def wall_contact(st: np.ndarray, geom: np.ndarray, p: np.ndarray, grass_w: float
     return p[P_WALL_DMG] * vn
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
 def _interp_heading(geom: np.ndarray, col: int, i: int, s: float, length: float) -> float:
     n = geom.shape[0]
     j = i + 1 if i + 1 < n else 0
@@ -627,7 +716,7 @@ def _interp_heading(geom: np.ndarray, col: int, i: int, s: float, length: float)
     return geom[i, col] + _clip(t, 0.0, 1.0) * _wrap_angle(geom[j, col] - geom[i, col])
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
 def _index_ahead(geom: np.ndarray, i: int, s_target: float, length: float) -> int:
     """Sample index at or before ``s_target`` (wrapped), searching forward from ``i``."""
     n = geom.shape[0]
@@ -642,7 +731,7 @@ def _index_ahead(geom: np.ndarray, i: int, s_target: float, length: float) -> in
     return j
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_FAST, _nrt=False)
 def observe(st: np.ndarray, geom: np.ndarray, cfg: np.ndarray, lac_d: np.ndarray,
             obs: np.ndarray) -> float:
     """Write one car's telemetry into ``obs``; return its angle to the reference line (rad)."""
@@ -655,12 +744,20 @@ def observe(st: np.ndarray, geom: np.ndarray, cfg: np.ndarray, lac_d: np.ndarray
     off = st[ST_OFF] > 0.5
     x = st[ST_X]
     y = st[ST_Y]
-    for k in range(N_RAYS):
-        if off:
+    if off:
+        for k in range(N_RAYS):
             obs[OBS_TRACK + k] = -1.0
-        else:
-            ang = st[ST_PSI] + (k - 9) * (math.pi / 18.0)
-            obs[OBS_TRACK + k] = cast_ray(geom, i, x, y, ang, RAY_RANGE_M) / RAY_RANGE_M
+    else:
+        # One cos/sin pair and one origin quad per car, each ray's direction rotated from the
+        # heading by a table: the per-ray libm calls and quad search were ~1/3 of the ray time.
+        cp = math.cos(st[ST_PSI])
+        sp = math.sin(st[ST_PSI])
+        q = _origin_quad(geom, i, x, y)
+        for k in range(N_RAYS):
+            ca = _RAY_COS[k]
+            sa = _RAY_SIN[k]
+            obs[OBS_TRACK + k] = _cast(geom, q, x, y, cp * ca - sp * sa, sp * ca + cp * sa,
+                                       RAY_RANGE_M) * (1.0 / RAY_RANGE_M)
     half_w = 0.5 * (geom[i, G_WL] + geom[i, G_WR])
     obs[OBS_TRACKPOS] = (st[ST_LAT] - geom[i, G_REF_OFF]) / half_w
     obs[OBS_VX] = st[ST_VX] / SPEED_SCALE_MPS
@@ -676,7 +773,7 @@ def observe(st: np.ndarray, geom: np.ndarray, cfg: np.ndarray, lac_d: np.ndarray
     return angle
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
 def _locate(st: np.ndarray, geom: np.ndarray, length: float) -> None:
     s, lat, i = project(geom, length, st[ST_X], st[ST_Y], int(st[ST_IDX]))
     st[ST_S] = s
@@ -685,7 +782,7 @@ def _locate(st: np.ndarray, geom: np.ndarray, length: float) -> None:
     st[ST_OFF] = 1.0 if (lat > geom[i, G_WL] or lat < -geom[i, G_WR]) else 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_FAST, _nrt=False)
 def control_step(st: np.ndarray, act: np.ndarray, p: np.ndarray, torque: np.ndarray,
                  gears: np.ndarray, geom: np.ndarray, cfg: np.ndarray, out: np.ndarray) -> None:
     """Integrate one car over one control period; time laps at the start line.
@@ -706,10 +803,12 @@ def control_step(st: np.ndarray, act: np.ndarray, p: np.ndarray, torque: np.ndar
     out[O_LAP_TIME] = np.nan
     cd = math.cos(steer * p[P_STEER])
     sd = math.sin(steer * p[P_STEER])
+    cp = math.cos(st[ST_PSI])
+    sp = math.sin(st[ST_PSI])
     for _ in range(n_sub):
         s_old = st[ST_S]
-        physics_substep(st, steer, cd, sd, throttle, brake, p, torque, gears, st[ST_OFF] > 0.5,
-                        dt)
+        cp, sp = physics_substep(st, steer, cd, sd, throttle, brake, p, torque, gears,
+                                 st[ST_OFF] > 0.5, dt, cp, sp)
         _locate(st, geom, length)
         st[ST_DAMAGE] += wall_contact(st, geom, p, cfg[C_GRASS_W])
         s_new = st[ST_S]
@@ -734,7 +833,7 @@ def control_step(st: np.ndarray, act: np.ndarray, p: np.ndarray, torque: np.ndar
     out[O_DMG_INC] = st[ST_DAMAGE] - dmg0
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_FAST, _nrt=False)
 def _step_one(c: int, state: np.ndarray, actions: np.ndarray, integrate: np.ndarray,
               p: np.ndarray, torque: np.ndarray, gears: np.ndarray, geom: np.ndarray,
               cfg: np.ndarray, lac_d: np.ndarray, obs: np.ndarray, out: np.ndarray) -> None:
@@ -781,7 +880,7 @@ def _step_one(c: int, state: np.ndarray, actions: np.ndarray, integrate: np.ndar
     o[O_TRUNC] = 1.0 if (term == TERM_NONE and st[ST_STEPS] >= cfg[C_MAX_STEPS]) else 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_FAST, _nrt=False)
 def step_cars(state: np.ndarray, actions: np.ndarray, integrate: np.ndarray, p: np.ndarray,
               torque: np.ndarray, gears: np.ndarray, geom: np.ndarray, cfg: np.ndarray,
               lac_d: np.ndarray, obs: np.ndarray, out: np.ndarray) -> None:
@@ -794,7 +893,7 @@ def step_cars(state: np.ndarray, actions: np.ndarray, integrate: np.ndarray, p: 
         _step_one(c, state, actions, integrate, p, torque, gears, geom, cfg, lac_d, obs, out)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, fastmath=_FAST, _nrt=False, parallel=True)
 def step_cars_parallel(state: np.ndarray, actions: np.ndarray, integrate: np.ndarray,
                        p: np.ndarray, torque: np.ndarray, gears: np.ndarray, geom: np.ndarray,
                        cfg: np.ndarray, lac_d: np.ndarray, obs: np.ndarray,
@@ -807,7 +906,7 @@ def step_cars_parallel(state: np.ndarray, actions: np.ndarray, integrate: np.nda
         _step_one(c, state, actions, integrate, p, torque, gears, geom, cfg, lac_d, obs, out)
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_FAST, _nrt=False)
 def integrate_free(state: np.ndarray, actions: np.ndarray, p: np.ndarray, torque: np.ndarray,
                    gears: np.ndarray, on_grass: np.ndarray, dt: float, n_sub: int) -> None:
     """Advance N cars ``n_sub`` substeps of ``dt`` on an open plane (no track, no walls).
@@ -822,7 +921,9 @@ def integrate_free(state: np.ndarray, actions: np.ndarray, p: np.ndarray, torque
         brake = _clip(actions[c, 2], 0.0, 1.0)
         cd = math.cos(steer * p[P_STEER])
         sd = math.sin(steer * p[P_STEER])
+        cp = math.cos(st[ST_PSI])
+        sp = math.sin(st[ST_PSI])
         for _ in range(n_sub):
-            physics_substep(st, steer, cd, sd, throttle, brake, p, torque, gears,
-                            on_grass[c] != 0, dt)
+            cp, sp = physics_substep(st, steer, cd, sd, throttle, brake, p, torque, gears,
+                                     on_grass[c] != 0, dt, cp, sp)
             st[ST_TIME] += dt

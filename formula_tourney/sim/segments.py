@@ -26,12 +26,12 @@ from __future__ import annotations
 
 import math
 import re
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tomllib
 
 from formula_tourney.errors import UserInputError
 from formula_tourney.safeio import check_name
@@ -251,9 +251,8 @@ def _line_of(text: str, key: str, segment_index: int | None) -> int | None:
             if segment_index is None and header.group(1) == key:
                 return number
             continue
-        if pattern.match(line) and (
-            (segment_index is None and in_top) or (segment_index is not None and seg == segment_index)
-        ):
+        in_wanted = in_top if segment_index is None else seg == segment_index
+        if pattern.match(line) and in_wanted:
             return number
     return None
 
