@@ -3,10 +3,10 @@ a dead process, and writes its best parameters into a tournament file."""
 
 from __future__ import annotations
 
+import tomllib
 from pathlib import Path
 
 import pytest
-import tomllib
 
 from formula_tourney.errors import UserInputError
 from formula_tourney.tourney.spec import load_spec

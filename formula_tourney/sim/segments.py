@@ -26,12 +26,12 @@ from __future__ import annotations
 
 import math
 import re
+import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import tomllib
 
 from formula_tourney.errors import UserInputError
 from formula_tourney.safeio import check_name

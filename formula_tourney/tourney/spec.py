@@ -13,11 +13,11 @@ no line numbers, so :class:`TomlLocator` re-scans the text for each key inside i
 from __future__ import annotations
 
 import re
+import tomllib
 import typing
 from pathlib import Path
 from typing import Any, Literal
 
-import tomllib
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from formula_tourney.agents.variants import VARIANTS

@@ -23,10 +23,10 @@ import json
 import math
 import multiprocessing as mp
 import os
+import tomllib
 from pathlib import Path
 from typing import Any, Literal
 
-import tomllib
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from formula_tourney.errors import UserInputError
