@@ -129,7 +129,7 @@ G_SLEN = 17
 G_BHL = 18
 G_BHR = 19
 N_GEOM = 20
-RAY_BLOCK = 32
+RAY_BLOCK = 8
 
 # --- configuration -----------------------------------------------------------------------------
 C_DT = 0  # control period, s
