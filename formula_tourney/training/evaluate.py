@@ -36,6 +36,7 @@ class DriveResult:
     reward: float
     steps: int
     termination: str
+    distance_m: float = math.nan
     best_trace: pd.DataFrame | None = field(default=None, repr=False)
 
     @property
@@ -112,6 +113,7 @@ def run_test_episode(
         reward=total_reward,
         steps=steps,
         termination=str(info.get("termination") or ("max_steps" if truncated else "")),
+        distance_m=float(info.get("distance_m", math.nan)),
     )
     if record_trace and math.isfinite(ep.best_lap_s):
         ep.best_trace = _lap_trace(rows, lap_times, lap_damage, ep.best_lap_s)
@@ -146,7 +148,7 @@ def tests_row(ep: DriveResult, episode: int, env_steps: int, checkpoint: str) ->
         "episode": episode, "env_steps": env_steps, "track": ep.track,
         "start_s_m": ep.start_s_m, "finished": ep.finished, "best_lap_s": ep.best_lap_s,
         "laps": ep.laps, "damage": ep.damage, "reward": ep.reward, "steps": ep.steps,
-        "termination": ep.termination, "checkpoint": checkpoint,
+        "termination": ep.termination, "checkpoint": checkpoint, "distance_m": ep.distance_m,
     }  # fmt: skip
 
 
