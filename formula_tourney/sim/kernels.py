@@ -124,15 +124,11 @@ G_DX = 14  # segment to the next sample: x and y extent, 1 / length^2, arc lengt
 G_DY = 15
 G_INV2 = 16
 G_SLEN = 17
-# Bounding circles of each edge's vertices from sample k to k + RAY_BLOCK (centre x, y, radius):
-# a ray whose line clears both circles crosses those RAY_BLOCK quads in one test.
-G_BLX = 18
-G_BLY = 19
-G_BLR = 20
-G_BRX = 21
-G_BRY = 22
-G_BRR = 23
-N_GEOM = 24
+# Largest distance of each edge's vertices k .. k + RAY_BLOCK from the chord between the first
+# and the last (left, right): a ray whose line clears both capsules crosses those quads at once.
+G_BHL = 18
+G_BHR = 19
+N_GEOM = 20
 RAY_BLOCK = 8
 
 # --- configuration -----------------------------------------------------------------------------
@@ -444,18 +440,27 @@ def _cast(geom: np.ndarray, i: int, ox: float, oy: float, dx: float, dy: float,
             # ray along a straight costs one test instead of one per metre.
             k2 = int(geom[k, G_RUN])
         else:
-            # Block skip: if the ray's line clears the bounding circles of both edges over the
-            # RAY_BLOCK quads ahead, no edge vertex there is on the other side, so the ray
-            # crosses every section up to the block's end (the per-quad walk would find the
-            # same exit). In curves rays walked ~tens of 1 m quads each: rays were about half
-            # the kernel time.
+            # Block skip: each edge's vertices over the RAY_BLOCK quads ahead lie within
+            # G_BH* of the chord between the block's end vertices; if the ray's line keeps that
+            # far from both chords' ends on one side, no vertex lies on the other side, so the
+            # ray crosses every section up to the block's end (the per-quad walk would find the
+            # same exit). In curves rays walked tens of 1 m quads each, and the rays were about
+            # half the kernel time.
             b = k if step == 1 else k - RAY_BLOCK
             if b < 0:
                 b += n
-            if (abs(_side(ox, oy, dx, dy, geom[b, G_BLX], geom[b, G_BLY])) > geom[b, G_BLR]
-                    and abs(_side(ox, oy, dx, dy, geom[b, G_BRX], geom[b, G_BRY]))
-                    > geom[b, G_BRR]):
-                k2 = k + step * RAY_BLOCK
+            e = b + RAY_BLOCK
+            if e >= n:
+                e -= n
+            hl = geom[b, G_BHL]
+            hr = geom[b, G_BHR]
+            sl_b = _side(ox, oy, dx, dy, geom[b, G_LX], geom[b, G_LY])
+            sl_e = _side(ox, oy, dx, dy, geom[e, G_LX], geom[e, G_LY])
+            if (sl_b > hl and sl_e > hl) or (sl_b < -hl and sl_e < -hl):
+                sr_b = _side(ox, oy, dx, dy, geom[b, G_RX], geom[b, G_RY])
+                sr_e = _side(ox, oy, dx, dy, geom[e, G_RX], geom[e, G_RY])
+                if (sr_b > hr and sr_e > hr) or (sr_b < -hr and sr_e < -hr):
+                    k2 = k + step * RAY_BLOCK
             if k2 >= n:
                 k2 -= n
             elif k2 < 0:

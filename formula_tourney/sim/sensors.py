@@ -123,26 +123,25 @@ def track_geometry(track: Track, reference: ReferenceLine) -> np.ndarray:
     g[:, K.G_DY] = np.roll(track.y_m, -1) - track.y_m
     g[:, K.G_INV2] = 1.0 / np.maximum(g[:, K.G_DX] ** 2 + g[:, K.G_DY] ** 2, 1e-12)
     g[:, K.G_SLEN] = np.diff(np.append(track.s_m, track.length_m))
-    block_circles(g)
+    block_capsules(g)
     return np.ascontiguousarray(g)
 
 
-def block_circles(g: np.ndarray) -> None:
-    """Fill ``G_BL*``/``G_BR*``: for each sample ``k``, a circle holding the left (right) edge's
-    vertices ``k .. k + RAY_BLOCK`` (wrapping), slightly inflated so that rounding in the ray's
-    side test never lets a vertex through. The ray caster skips a block whose two circles its
-    line clears."""
+def block_capsules(g: np.ndarray) -> None:
+    """Fill ``G_BHL``/``G_BHR``: for each sample ``k``, the largest distance of the left (right)
+    edge's vertices ``k .. k + RAY_BLOCK`` (wrapping) from the chord between the first and the
+    last, slightly inflated so that rounding in the ray's side test never lets a vertex through.
+    The ray caster crosses a block in one step when its line clears both capsules."""
     n = g.shape[0]
     idx = (np.arange(n)[:, None] + np.arange(K.RAY_BLOCK + 1)[None, :]) % n
-    for xc, yc, cx, cy, cr in ((K.G_LX, K.G_LY, K.G_BLX, K.G_BLY, K.G_BLR),
-                               (K.G_RX, K.G_RY, K.G_BRX, K.G_BRY, K.G_BRR)):
+    for xc, yc, hc in ((K.G_LX, K.G_LY, K.G_BHL), (K.G_RX, K.G_RY, K.G_BHR)):
         x, y = g[idx, xc], g[idx, yc]
-        mx = 0.5 * (x.min(axis=1) + x.max(axis=1))
-        my = 0.5 * (y.min(axis=1) + y.max(axis=1))
-        rad = np.sqrt(((x - mx[:, None]) ** 2 + (y - my[:, None]) ** 2).max(axis=1))
-        g[:, cx] = mx
-        g[:, cy] = my
-        g[:, cr] = rad * (1.0 + 1e-9) + 1e-6
+        ax, ay = x[:, :1], y[:, :1]
+        ex, ey = x[:, -1:] - ax, y[:, -1:] - ay
+        len2 = np.maximum(ex * ex + ey * ey, 1e-300)
+        t = np.clip(((x - ax) * ex + (y - ay) * ey) / len2, 0.0, 1.0)
+        dist = np.hypot(ax + t * ex - x, ay + t * ey - y).max(axis=1)
+        g[:, hc] = dist * (1.0 + 1e-9) + 1e-6
 
 
 STRAIGHT_TOLERANCE_M = 1e-9
