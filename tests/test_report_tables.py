@@ -203,3 +203,16 @@ def test_markdown_and_latex_render(built: dict[str, tables.ReportTable]) -> None
     # families are separated: win rows, midrule, ms3
     lines = tex.splitlines()
     assert lines[lines.index(next(x for x in lines if x.startswith("ms3 "))) - 1] == "\\midrule"
+
+
+def test_terminal_table_never_cuts_numbers_on_a_narrow_console(
+    built: dict[str, tables.ReportTable],
+) -> None:
+    """A piped or 80-column console used to shrink cells to '27.…'; the numbers must stay whole."""
+    from rich.console import Console
+
+    console = Console(width=40, record=True, color_system=None)
+    tables.render_rich(built["table1"], console)
+    text = console.export_text()
+    assert "…" not in text
+    assert "27.10" in text  # win1's bLT on the oval, computed by hand above

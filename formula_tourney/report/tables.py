@@ -755,10 +755,13 @@ def render_rich(table: ReportTable, console: Any) -> None:
     for group in table.groups:
         metrics = table.metrics[group]
         rt = Table(title=group, title_justify="left", show_lines=False)
-        rt.add_column("", no_wrap=True)
-        for m in metrics:
-            rt.add_column(m, justify="right", no_wrap=True)
         shown = table.shown(group)
+        label_width = max([len(table.rows[i]["label"]) for i in shown] + [1])
+        rt.add_column("", no_wrap=True, min_width=label_width)
+        for m in metrics:
+            width = max([len(table.rows[i]["text"].get((group, m), _DASH)) for i in shown]
+                        + [len(m)])
+            rt.add_column(m, justify="right", no_wrap=True, min_width=width)
         for k, i in enumerate(shown):
             row = table.rows[i]
             cells = []
@@ -768,7 +771,10 @@ def render_rich(table: ReportTable, console: Any) -> None:
             nxt = table.rows[shown[k + 1]] if k + 1 < len(shown) else None
             end = nxt is not None and (nxt["kind"] != row["kind"] or nxt["family"] != row["family"])
             rt.add_row(row["label"], *cells, end_section=end)
-        console.print(rt)
+        # Never cut a lap time to an ellipsis: a narrow (or piped, 80-column) console gets the
+        # table at its natural width instead.
+        natural = sum(c.min_width or 0 for c in rt.columns) + 3 * len(rt.columns) + 1
+        console.print(rt, width=max(console.width, natural), crop=False)
     for note in table.notes:
         console.print(f"  {note}")
 
