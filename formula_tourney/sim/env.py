@@ -281,13 +281,7 @@ class _Batch:
         set_start(self.state[c], self.car, x, y, h, speed)
         self.state[c, K.ST_IDX] = i  # projection hint: a local search, not a global scan
         self.integrate[c] = 0
-        self.lap_times[c] = []
-        self.lap_damage[c] = []
-        self.lap_start_damage[c] = 0.0
-        self.best_lap[c] = np.nan
-        self.last_lap[c] = np.nan
-        self.laps[c] = 0
-        self.termination[c] = None
+        self._clear_lap_records(np.array([c]))
 
     def reset_cars(self, cars: np.ndarray, rng: np.random.Generator) -> None:
         """:meth:`reset_car` without options for many cars at once (the vector autoreset).
@@ -309,6 +303,10 @@ class _Batch:
                 tr.s_m, ref.x_m, ref.y_m, ref.heading_rad))
         K.reset_rows(self.state, self.integrate, np.asarray(cars, dtype=np.int64), s,
                      self._start_row, *self._reset_arrays, float(tr.length_m))
+        self._clear_lap_records(cars)
+
+    def _clear_lap_records(self, cars: np.ndarray) -> None:
+        """Forget the lap book-keeping of ``cars``: the one place a reset clears it."""
         for c in cars:
             self.lap_times[c] = []
             self.lap_damage[c] = []
