@@ -372,6 +372,17 @@ _DOC_TABLE = """
 """
 
 
+def _render_frame(env: Any):
+    """The ``rgb_array`` frame of a single or vector env (both hold a ``_Batch`` as ``_b``)."""
+    if env.render_mode != "rgb_array":
+        return None
+    if env._renderer is None:
+        from formula_tourney.sim.render import TrackRenderer
+
+        env._renderer = TrackRenderer(env.track, env._b.grass_w)
+    return env._renderer.frame(env._b.state, env.car)
+
+
 class FormulaRacingEnv(gymnasium.Env):
     __doc__ = f"""A racing car at its grip limit on a closed track, observed through telemetry.
 
@@ -468,12 +479,7 @@ class FormulaRacingEnv(gymnasium.Env):
         return self._obs_row.copy(), float(out[K.O_REWARD]), term != 0, bool(truncated), b.info(0)
 
     def render(self):
-        if self.render_mode != "rgb_array":
-            return None
-        if self._renderer is None:
-            from formula_tourney.sim.render import TrackRenderer
-            self._renderer = TrackRenderer(self.track, self._b.grass_w)
-        return self._renderer.frame(self._b.state, self.car)
+        return _render_frame(self)
 
 
 _INFO_COLS = [K.ST_DAMAGE, K.ST_DIST, K.ST_S, K.ST_LAT, K.ST_VX, K.ST_VY, K.ST_OFF]
@@ -579,9 +585,4 @@ class FormulaRacingVectorEnv(VectorEnv):
         return info
 
     def render(self):
-        if self.render_mode != "rgb_array":
-            return None
-        if self._renderer is None:
-            from formula_tourney.sim.render import TrackRenderer
-            self._renderer = TrackRenderer(self.track, self._b.grass_w)
-        return self._renderer.frame(self._b.state, self.car)
+        return _render_frame(self)
