@@ -36,6 +36,17 @@ def check_name(name: str, what: str = "name") -> str:
     return name
 
 
+def read_user_text(path: str | Path, what: str) -> str:
+    """Text of a user's file, or a UserInputError naming it: one wording for every file kind."""
+    path = Path(path)
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise UserInputError(f"{path}: {what} file not found") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise UserInputError(f"{path}: cannot read {what} file ({err})") from None
+
+
 def atomic_write(path: str | Path, write: Callable[[Path], None]) -> Path:
     """Call ``write(tmp_path)`` and rename the result onto ``path`` (same folder, so atomic)."""
     path = Path(path)

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from formula_tourney.errors import UserInputError
-from formula_tourney.safeio import check_name
+from formula_tourney.safeio import check_name, read_user_text
 from formula_tourney.sim.track import SAMPLE_SPACING_M, Track
 
 CLOSURE_TOLERANCE_M = 1.0
@@ -114,12 +114,7 @@ class TrackSpec:
 def load_spec(path: str | Path, name: str | None = None) -> TrackSpec:
     """Read and validate a track TOML file; ``name`` overrides the file's own name."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise UserInputError(f"{path}: track file not found") from None
-    except (OSError, UnicodeDecodeError) as err:
-        raise UserInputError(f"{path}: cannot read track file ({err})") from None
+    text = read_user_text(path, "track")
     return parse_spec(text, str(path), default_name=name or path.stem, force_name=name)
 
 

@@ -22,7 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from formula_tourney.agents.variants import VARIANTS
 from formula_tourney.errors import UserInputError
-from formula_tourney.safeio import check_name
+from formula_tourney.safeio import check_name, read_user_text
 
 # The paper's ten variants (section "Algorithms"); agents.variants defines what each one is.
 PAPER_VARIANTS: tuple[str, ...] = tuple(VARIANTS)
@@ -422,12 +422,7 @@ def load_spec(path: str | Path) -> tuple[Tournament, str]:
     rest of the tool by :func:`check_references` and by ``tourney.plan``.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise UserInputError(f"{path}: tournament file not found") from None
-    except (OSError, UnicodeDecodeError) as err:
-        raise UserInputError(f"{path}: cannot read tournament file ({err})") from None
+    text = read_user_text(path, "tournament")
     return parse_spec(text, path), text
 
 

@@ -30,7 +30,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from formula_tourney.errors import UserInputError
-from formula_tourney.safeio import atomic_write_text, check_name
+from formula_tourney.safeio import atomic_write_text, check_name, read_user_text
 from formula_tourney.tourney.lock import RunLock
 from formula_tourney.tourney.spec import JobSettings, Setup, describe_errors, error_at
 
@@ -119,11 +119,9 @@ class TuneSpec(BaseModel):
 def load_tune_spec(path: str | Path) -> tuple[TuneSpec, str]:
     """Read and validate a tune file (search keys checked against AgentConfig's fields)."""
     path = Path(path)
+    text = read_user_text(path, "tune")
     try:
-        text = path.read_text(encoding="utf-8")
         raw = tomllib.loads(text)
-    except FileNotFoundError:
-        raise UserInputError(f"{path}: tune file not found") from None
     except tomllib.TOMLDecodeError as err:
         raise UserInputError(f"{path}: not valid TOML: {err}") from None
     try:
