@@ -200,6 +200,43 @@ def test_q_pair_equals_two_critic_evaluations(name: str) -> None:
         torch.testing.assert_close(q_pi, agent.critic(obs, pi, past))
 
 
+@pytest.mark.parametrize("name", ["WIN1", "WIN4", "MS3", "PER40k"])
+def test_hand_written_update_matches_autograd(name: str) -> None:
+    """The MLP critic's autograd-free update gives the autograd update's weights and priorities
+    (also across a change of batch size, which reallocates its buffers)."""
+    cfg = get_variant(name, {**SMALL, "buffer_size": 1000})
+    manual, reference = DDPGAgent(cfg, D, seed=4), DDPGAgent(cfg, D, seed=4)
+    assert manual._mlp_update is not None
+    kw = {"alpha": cfg.per_alpha, "lambda3": cfg.per_lambda3} if cfg.prioritized else {}
+    buf_m, buf_r = _buffer_for(cfg, seed=5, **kw), _buffer_for(cfg, seed=5, **kw)
+    for batch_size in (16, 16, 8, 16, 16):
+        info_m = manual.update(buf_m.sample(batch_size), buf_m)
+        info_r = reference._update_autograd(buf_r.sample(batch_size), buf_r)
+        np.testing.assert_allclose(info_m, info_r, rtol=1e-4, atol=1e-6)
+        if cfg.prioritized:
+            np.testing.assert_allclose(manual.last_priorities, reference.last_priorities, rtol=1e-4)
+    for key in ("actor", "critic", "actor_target", "critic_target"):
+        sm, sr = getattr(manual, key).state_dict(), getattr(reference, key).state_dict()
+        for k in sm:
+            assert torch.allclose(sm[k], sr[k], atol=1e-5, rtol=1e-4), f"{key}.{k}"
+    for opt in ("actor_opt", "critic_opt"):
+        om, orf = getattr(manual, opt).state_dict(), getattr(reference, opt).state_dict()
+        pairs = zip(
+            om["exp_avg"] + om["exp_avg_sq"], orf["exp_avg"] + orf["exp_avg_sq"], strict=True
+        )
+        for a, b in pairs:
+            assert torch.allclose(a, b, atol=1e-6, rtol=1e-3)
+
+
+@pytest.mark.parametrize("name", ["WIN4", "LSTM4"])
+def test_act_equals_the_actor_module(name: str) -> None:
+    agent = DDPGAgent(get_variant(name, SMALL), D, seed=2)
+    window = np.random.default_rng(0).normal(size=(4, D)).astype(np.float32)
+    with torch.no_grad():
+        expected = agent.actor(torch.from_numpy(window)[None])[0].numpy()
+    np.testing.assert_allclose(agent.act(window), expected, rtol=1e-6, atol=1e-7)
+
+
 def test_device_is_chosen_at_run_time() -> None:
     from formula_tourney.agents.ddpg import resolve_device
 
@@ -207,3 +244,28 @@ def test_device_is_chosen_at_run_time() -> None:
     if not torch.cuda.is_available():
         with pytest.raises(UserInputError, match="cuda"):
             resolve_device("cuda")
+
+
+@pytest.mark.parametrize("name", ["WIN1", "LSTM4"])
+def test_deepcopy_is_an_independent_agent_that_keeps_learning(name: str) -> None:
+    cfg = get_variant(name, SMALL)
+    agent = DDPGAgent(cfg, D, seed=3)
+    buf = _buffer_for(cfg)
+    batch = buf.sample(16)
+    agent.update(batch, buf)
+    rng_before = torch.get_rng_state()
+    clone = copy.deepcopy(agent)
+    assert torch.equal(torch.get_rng_state(), rng_before)  # copying drew no random numbers
+    # the same next update on both gives the same weights, targets included (the clone's
+    # soft update and Adam step reach its networks), and the original is left untouched
+    before = [p.detach().clone() for p in agent.actor_target.parameters()]
+    clone.update(batch, buf)
+    for p, q in zip(agent.actor_target.parameters(), before, strict=True):
+        assert torch.equal(p, q)
+    agent.update(batch, buf)
+    for net in ("actor", "critic", "actor_target", "critic_target"):
+        for p, q in zip(getattr(agent, net).parameters(), getattr(clone, net).parameters(),
+                        strict=True):  # fmt: skip
+            torch.testing.assert_close(p, q)
+    assert any(not torch.equal(p, q) for p, q in
+               zip(clone.actor_target.parameters(), before, strict=True))  # fmt: skip

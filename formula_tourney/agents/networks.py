@@ -11,6 +11,7 @@ unstable.
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -58,6 +59,41 @@ class Actor(nn.Module):
         x = torch.relu_(self.l2(x))
         z = self.out(x)
         return torch.cat([torch.tanh(z[:, :1]), torch.sigmoid(z[:, 1:])], dim=1)
+
+
+class GreedyAct:
+    """mu(s) for one observation window, computed into buffers allocated once: the acting step.
+
+    Same arithmetic as ``Actor.forward`` on a batch of one. Without module calls, ``cat`` and
+    fresh tensors an action took ~100 instead of ~200 us here when run, as in training, between
+    updates that evict the caches. Reads the actor's parameters through views, so it follows
+    in-place updates and checkpoint loads (parameters must not be rebound).
+    """
+
+    def __init__(self, actor: Actor) -> None:
+        self.window = actor.window
+        layers = (actor.l1, actor.l2, actor.out)
+        self.weights_t = [m.weight.detach().t() for m in layers]
+        self.biases = [m.bias.detach() for m in layers]
+        like = actor.l1.weight
+        self.hidden = [like.new_empty(1, m.out_features) for m in (actor.l1, actor.l2)]
+        self.z, self.pi = like.new_empty(1, 3), like.new_empty(1, 3)
+        # steer and pedal columns as views made once (a slice costs ~1.4 us per call)
+        self.columns = (self.z[:, :1], self.pi[:, :1], self.z[:, 1:], self.pi[:, 1:])
+
+    @torch.no_grad()
+    def __call__(self, obs_window: np.ndarray) -> np.ndarray:
+        """Action ``(3,)`` for one window ``(w, obs_dim)`` (the actor reads its last rows)."""
+        x = torch.as_tensor(obs_window, dtype=torch.float32, device=self.z.device)
+        x = x[-self.window :].reshape(1, -1)
+        (w1, w2, w3), (b1, b2, b3), (h1, h2) = self.weights_t, self.biases, self.hidden
+        torch.relu_(torch.addmm(b1, x, w1, out=h1))
+        torch.relu_(torch.addmm(b2, h1, w2, out=h2))
+        torch.addmm(b3, h2, w3, out=self.z)
+        z_steer, pi_steer, z_pedals, pi_pedals = self.columns
+        torch.tanh(z_steer, out=pi_steer)
+        torch.sigmoid(z_pedals, out=pi_pedals)
+        return self.pi[0].cpu().numpy().copy()
 
 
 class MLPCritic(nn.Module):

@@ -84,12 +84,9 @@ def _run_train(job: Job, progress: Progress | None) -> dict[str, Any]:
     _fresh_dir(out_dir)
     atomic_write_json(out_dir / TOURNEY_META_FILE, {"job_id": job.job_id, **job.meta})
     cfg = TrainConfig(**job.config)
-    try:
-        import torch
+    from formula_tourney.agents.ddpg import configure_torch
 
-        torch.set_num_threads(int(job.config.get("threads") or 1))
-    except RuntimeError:  # set_num_threads after parallel work started: keep the current value
-        pass
+    configure_torch(int(job.config.get("threads") or 1))
     return dict(train(cfg, out_dir, progress))
 
 

@@ -99,9 +99,8 @@ def train(
     after each episode; if it returns ``False`` the run stops early (time budgets, benchmarks) and
     still writes its summary. Raises DivergedError on NaN losses.
     """
-    import torch
 
-    from formula_tourney.agents.ddpg import DDPGAgent, save_checkpoint
+    from formula_tourney.agents.ddpg import DDPGAgent, configure_torch, save_checkpoint
     from formula_tourney.agents.noise import BrakeExplorationNoise, linear_epsilon
     from formula_tourney.agents.replay import ObservationWindow, make_buffer
     from formula_tourney.agents.variants import get_variant
@@ -120,7 +119,7 @@ def train(
     out = Path(out_dir)
 
     # --- seeding: one block ------------------------------------------------------------------
-    torch.set_num_threads(cfg.threads)
+    configure_torch(cfg.threads)
     env_seq, noise_seq, buf_seq = np.random.SeedSequence(cfg.seed).spawn(3)
     rng = np.random.default_rng(env_seq)
 
