@@ -6,7 +6,8 @@
     on the same env (SB3 is the ``bench`` extra);
 (c) the roofline: the update's matrix-multiply FLOPs (recorded from one real update) divided by
     the rate this CPU reaches on exactly those GEMMs, timed in isolation in the same run.
-Also the LSTM critic's update rate (LSTM4, LSTM8) and where the update's time goes.
+Also, side by side: the autograd reference update and the update with denormals kept, the LSTM
+critic's update rate (LSTM4, LSTM8), and (``--profile``) where the update's time goes.
 
 One thread per process (two threads in one process measured slower than two processes).
 Measurements are interleaved in rounds and the median is kept, because the machine is shared.
@@ -118,12 +119,19 @@ class Ours:
                 self.stack = self.window.push(nxt)
         return time.perf_counter() - t0
 
-    def updates(self, n: int) -> float:
+    def updates(self, n: int, autograd: bool = False, flush_denormals: bool = True) -> float:
+        """Seconds of ``n`` updates alone; ``autograd`` times the autograd reference update,
+        ``flush_denormals=False`` the update as it ran before denormals were flushed."""
+        step = self.agent._update_autograd if autograd else self.agent.update
         batches = [self.buf.sample(BATCH) for _ in range(4)]
-        t0 = time.perf_counter()
-        for i in range(n):
-            self.agent.update(batches[i % 4], self.buf)
-        return time.perf_counter() - t0
+        torch.set_flush_denormal(flush_denormals)
+        try:
+            t0 = time.perf_counter()
+            for i in range(n):
+                step(batches[i % 4], self.buf)
+            return time.perf_counter() - t0
+        finally:
+            torch.set_flush_denormal(True)
 
 
 # --- (b) Stable-Baselines3 ----------------------------------------------------------------------
@@ -239,15 +247,18 @@ def main() -> None:
     # Each round alternates short blocks of every measurement, so all of them see the same
     # load from other processes on this shared machine; medians over rounds are reported.
     loop_rate, upd_rate, sb3_rate, gemm_s = [], [], [], []
+    autograd_ms, denormal_ms = [], []  # side by side: the reference update, denormals kept
     lstm_rate: dict[str, list[float]] = {v: [] for v in lstm}
     block = 50
     for r in range(args.rounds):
-        t_loop = t_upd = t_sb3 = t_gemm = 0.0
+        t_loop = t_upd = t_sb3 = t_gemm = t_autograd = t_denormal = 0.0
         t_lstm = dict.fromkeys(lstm, 0.0)
         n_blocks = max(1, args.steps // block)
         for _ in range(n_blocks):
             t_loop += ours.steps(block)
             t_upd += ours.updates(block)
+            t_autograd += ours.updates(block, autograd=True)
+            t_denormal += ours.updates(block, flush_denormals=False)
             t_gemm += time_gemms(calls, reps=block)
             if sb3 is not None:
                 t_sb3 += sb3.steps(block)
@@ -256,6 +267,8 @@ def main() -> None:
         n = n_blocks * block
         loop_rate.append(n / t_loop)
         upd_rate.append(n / t_upd)
+        autograd_ms.append(t_autograd / n * 1e3)
+        denormal_ms.append(t_denormal / n * 1e3)
         gemm_s.append(t_gemm / n)
         if sb3 is not None:
             sb3_rate.append(n / t_sb3)
@@ -286,6 +299,9 @@ def main() -> None:
         "ours_steps_per_s": round(a, 2),
         "ours_updates_per_s_update_only": round(a_update, 2),
         "sb3_steps_per_s": None if b is None else round(b, 2),
+        "update_ms": round(1e3 / a_update, 3),
+        "update_ms_autograd_reference": round(statistics.median(autograd_ms), 3),
+        "update_ms_denormals_kept": round(statistics.median(denormal_ms), 3),
         "update_gemm_mflop": round(flops / 1e6, 1),
         "gemm_gflops": round(flops / g / 1e9, 1),
         "roofline_updates_per_s": round(roofline, 2),

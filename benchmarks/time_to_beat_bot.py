@@ -34,7 +34,8 @@ from typing import Any  # noqa: E402
 # Settings of the measured run (WIN1 otherwise at its registered defaults). The exploration
 # phase is shortened from the paper-scale 100k steps to fit a 10-minute budget, and the batch is
 # Lillicrap et al.'s 64: an update then costs ~1/3 of a 256-batch one on one CPU thread, and on
-# `oval` 4 of 4 seeds beat the bot within 600 CPU-s at 64 against 2 of 4 at 256.
+# `oval` 4 of 4 seeds beat the bot within 600 CPU-s at 64; at 256, with the earlier autograd
+# update, 2 of 4 did.
 OVERRIDES = {
     "exploration_steps": 40_000, "learning_starts": 1_000, "buffer_size": 200_000,
     "batch_size": 64,

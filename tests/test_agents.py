@@ -215,10 +215,13 @@ def test_hand_written_update_matches_autograd(name: str) -> None:
         np.testing.assert_allclose(info_m, info_r, rtol=1e-4, atol=1e-6)
         if cfg.prioritized:
             np.testing.assert_allclose(manual.last_priorities, reference.last_priorities, rtol=1e-4)
+    fresh = DDPGAgent(cfg, D, seed=4)
     for key in ("actor", "critic", "actor_target", "critic_target"):
         sm, sr = getattr(manual, key).state_dict(), getattr(reference, key).state_dict()
+        s0 = getattr(fresh, key).state_dict()
         for k in sm:
             assert torch.allclose(sm[k], sr[k], atol=1e-5, rtol=1e-4), f"{key}.{k}"
+            assert not torch.equal(sm[k], s0[k]), f"{key}.{k} never moved"  # a real comparison
     for opt in ("actor_opt", "critic_opt"):
         om, orf = getattr(manual, opt).state_dict(), getattr(reference, opt).state_dict()
         pairs = zip(

@@ -41,63 +41,44 @@ class UpdateInfo(NamedTuple):
 
 
 class FusedAdam:
-    """Adam (Kingma & Ba) as two calls: the step counter, then PyTorch's fused multi-tensor kernel.
+    """Adam (Kingma & Ba) over one flat parameter tensor: the step counter, then PyTorch's fused
+    kernel on one tensor per argument.
 
     Same arithmetic as ``torch.optim.Adam(fused=True)``; calling the kernel directly skips the
-    Optimizer wrapper's Python bookkeeping, measured at ~0.26 ms per call here, i.e. ~5% of a
-    400-300 DDPG update on one CPU thread. The moments are views of one flat tensor each, so
-    that where the parameters are consecutive views of one tensor too (``flat``), a step with a
-    flat gradient is one kernel call on one tensor per argument. All parameters step together,
-    so they share one step counter (``steps`` lists it once per parameter for the checkpoint).
+    Optimizer wrapper's Python bookkeeping (~0.26 ms per call here, ~5% of a 400-300 DDPG update
+    on one CPU thread). ``params`` are views laid out consecutively in ``flat`` and ``flat_grad``
+    holds their gradients in the same layout (the agent binds each parameter's ``.grad`` to its
+    view, so the autograd and the hand-written update fill the same buffer). The moments are
+    flat too; per-parameter views of them and of the one shared step counter form the
+    checkpoint's state.
     """
 
     def __init__(
         self,
         params: list[torch.Tensor],
+        flat: torch.Tensor,
+        flat_grad: torch.Tensor,
         lr: float,
         betas: tuple[float, float] = (0.9, 0.999),
         eps: float = 1e-8,
-        flat: torch.Tensor | None = None,
     ) -> None:
-        self.params = list(params)
-        self.lr, self.betas, self.eps = lr, betas, eps
-        like = self.params[0]
-        n = sum(p.numel() for p in self.params)
-        self.exp_avg_flat = torch.zeros(n, dtype=like.dtype, device=like.device)
-        self.exp_avg_sq_flat = torch.zeros_like(self.exp_avg_flat)
-        self.exp_avg = _split_like(self.exp_avg_flat, self.params)
-        self.exp_avg_sq = _split_like(self.exp_avg_sq_flat, self.params)
-        self.step_count = torch.zeros((), dtype=torch.float32, device=like.device)
-        self.steps = [self.step_count] * len(self.params)
-        if flat is not None and not _is_laid_out_in(self.params, flat):
+        if not _is_laid_out_in(params, flat) or flat_grad.shape != flat.shape:
             raise ValueError("FusedAdam: flat must hold exactly the parameters, in order")
-        self.flat = flat
-        self._flat_lists = ([flat], [self.exp_avg_flat], [self.exp_avg_sq_flat], [self.step_count])
-
-    def zero_grad(self) -> None:
-        for p in self.params:
-            p.grad = None
+        self.lr, self.betas, self.eps = lr, betas, eps
+        exp_avg, exp_avg_sq = torch.zeros_like(flat), torch.zeros_like(flat)
+        step_count = torch.zeros((), dtype=torch.float32, device=flat.device)
+        self._kernel_args = ([flat], [flat_grad], [exp_avg], [exp_avg_sq], [], [step_count])
+        self.exp_avg = _split_like(exp_avg, params)
+        self.exp_avg_sq = _split_like(exp_avg_sq, params)
+        self.steps = [step_count] * len(params)
 
     @torch.no_grad()
-    def step(self, flat_grad: torch.Tensor | None = None) -> None:
-        """One Adam step from the parameters' ``.grad``, or from ``flat_grad`` laid out as
-        ``flat`` (the autograd-free update's gradient buffer)."""
-        if flat_grad is None:
-            grads = [p.grad for p in self.params]
-            if any(g is None for g in grads):
-                raise RuntimeError("FusedAdam.step: a parameter has no gradient")
-            params, exp_avg, exp_avg_sq, steps = (
-                self.params, self.exp_avg, self.exp_avg_sq, self.steps
-            )  # fmt: skip
-        else:
-            if self.flat is None:
-                raise RuntimeError("FusedAdam.step: a flat gradient needs flat parameters")
-            (params, exp_avg, exp_avg_sq, steps), grads = self._flat_lists, [flat_grad]
-        self.step_count.add_(1.0)
+    def step(self) -> None:
+        """One Adam step from the gradient buffer."""
+        self.steps[0].add_(1.0)
         torch._fused_adam_(
-            params, grads, exp_avg, exp_avg_sq, [], steps,
-            lr=self.lr, beta1=self.betas[0], beta2=self.betas[1], weight_decay=0.0,
-            eps=self.eps, amsgrad=False, maximize=False,
+            *self._kernel_args, lr=self.lr, beta1=self.betas[0], beta2=self.betas[1],
+            weight_decay=0.0, eps=self.eps, amsgrad=False, maximize=False,
         )  # fmt: skip
 
     def state_dict(self) -> dict[str, Any]:
@@ -151,9 +132,11 @@ def _flat_views(modules: list[nn.Module]) -> torch.Tensor:
 def configure_torch(threads: int = 1) -> None:
     """Per-process torch settings of a learner: its thread count, and denormals flushed to zero.
 
-    Adam's second moments and the gradients of saturated units decay into float32 denormals
-    (below 1.2e-38), which the CPU handles in microcode: measured here, an update ran 6.3 ms with
-    them and 5.4 ms flushed. Flushing changes values only below 1.2e-38, and identically on every
+    One place for what training, tournament workers and benchmarks set. Adam's second moments
+    decay geometrically where a weight's gradient stays zero (dead ReLU units), and float32
+    denormals (below 1.2e-38) run in microcode on x86; flushing them is a guard for long runs.
+    At benchmark scale it changes nothing measurable (``learner_throughput.py`` times the update
+    with denormals kept beside it). Values change only below 1.2e-38 and identically on every
     run, so determinism is kept. ``set_num_threads`` raises once parallel work has started in
     this process; then the current count is kept.
     """
@@ -214,19 +197,26 @@ class DDPGAgent:
         self._target_flat = _flat_views([self.actor_target, self.critic_target])
         self._actor_params = list(self.actor.parameters())
         self._critic_params = list(self.critic.parameters())
+        # one gradient buffer laid out like the online weights, bound as every parameter's .grad:
+        # autograd accumulates into it, the hand-written update writes it, Adam reads it
+        self._grad_flat = torch.zeros_like(self._online_flat)
+        online = self._actor_params + self._critic_params
+        for p, g in zip(online, _split_like(self._grad_flat, online), strict=True):
+            p.grad = g
         n_actor = sum(p.numel() for p in self._actor_params)
-        # fused Adam: 0.27 ms vs 0.55 ms (foreach) per 400-300 net step here
         self.actor_opt = FusedAdam(
-            self._actor_params, lr=cfg.actor_lr, flat=self._online_flat[:n_actor]
-        )
+            self._actor_params, self._online_flat[:n_actor], self._grad_flat[:n_actor],
+            lr=cfg.actor_lr,
+        )  # fmt: skip
         self.critic_opt = FusedAdam(
-            self._critic_params, lr=cfg.critic_lr, flat=self._online_flat[n_actor:]
-        )
+            self._critic_params, self._online_flat[n_actor:], self._grad_flat[n_actor:],
+            lr=cfg.critic_lr,
+        )  # fmt: skip
         # the MLP critic's update is written out by hand (mlp_update.py); the LSTM's uses autograd
         self._mlp_update: MLPUpdate | None = None
         if isinstance(self.critic, MLPCritic):
             self._mlp_update = MLPUpdate(
-                self.actor, self.critic, self.actor_target, self.critic_target, self._online_flat
+                self.actor, self.critic, self.actor_target, self.critic_target
             )
         self._greedy = GreedyAct(self.actor)
         self.updates = 0
@@ -278,16 +268,16 @@ class DDPGAgent:
 
         ``per_buffer`` (a PrioritizedReplayBuffer) receives eq. (5)'s priorities for the batch.
         MLP critics take the hand-written update (``mlp_update.py``): the mathematics of
-        ``_update_autograd`` in ~4.5 instead of ~5.5 ms at 400-300, batch 256, one CPU thread
-        (no autograd graph; ~60 operators into preallocated buffers instead of ~160).
+        ``_update_autograd`` with no autograd graph, ~60 operators into preallocated buffers
+        instead of ~160 (``learner_throughput.py`` times both side by side).
         """
         if self._mlp_update is None:
             return self._update_autograd(batch, per_buffer)
         cfg, mlp = self.cfg, self._mlp_update
         t = self._tensors(batch, self._MLP_FIELDS)
         result = mlp.gradients(**t, action_grad=cfg.prioritized)
-        self.critic_opt.step(mlp.critic_grad)
-        self.actor_opt.step(mlp.actor_grad)
+        self.critic_opt.step()
+        self.actor_opt.step()
         with torch.no_grad():  # (4)
             self._target_flat.lerp_(self._online_flat, cfg.tau)
         if cfg.prioritized and per_buffer is not None:
@@ -324,8 +314,7 @@ class DDPGAgent:
         actor_loss = -q_pi.mean()
         if cfg.prioritized:  # (5) needs grad_a Q(s_i, a_i) at the stored action
             (grad_a,) = torch.autograd.grad(q.sum(), actions, retain_graph=True)
-        self.critic_opt.zero_grad()
-        self.actor_opt.zero_grad()
+        self._grad_flat.zero_()  # backward accumulates into the bound .grad views
         # each loss reaches only its own network's weights (no critic dW from the actor loss)
         # (the LSTM critic runs both sequences in one call, so its graph is shared and kept)
         critic_loss.backward(inputs=self._critic_params, retain_graph=self.critic.recurrent)

@@ -1,12 +1,14 @@
 """The DDPG update for the MLP actor and critic with hand-written backward passes.
 
 Same mathematics as the autograd update in ``ddpg.py`` (equations (1)-(5) there), for every
-variant whose critic is :class:`MLPCritic` (WIN, MS, PER). At 400-300, batch 256, on one CPU
-thread the update's GEMMs take ~4 ms; the autograd engine and its ~160 small operators
-added ~1.6 ms on top. Written by hand the update is ~60 operators, all writing into buffers
-allocated once per batch size (``out=``), with no graph to build:
+variant whose critic is :class:`MLPCritic` (WIN, MS, PER). On one CPU thread the autograd
+engine and its ~160 small operators cost more than a quarter on top of the update's GEMMs
+(``benchmarks/learner_throughput.py`` times both updates side by side). Written by hand the
+update is ~60 operators, all writing into buffers allocated once per batch size (``out=``),
+with no graph to build:
 
-* forward: ``h = relu(x W^T + b)`` per layer (``addmm`` into a buffer, then ``relu_``);
+* forward: ``h = relu(x W^T + b)`` per layer (``addmm`` into a buffer, then ``relu_``); the
+  actor's is :class:`~formula_tourney.agents.networks.ActorPass`, which acting runs too;
 * ReLU backward: ``threshold_backward`` on the layer's output, in place on the gradient;
 * bias gradients: a sum over the batch (measured faster than a ones column in the GEMM);
 * the critic's two evaluations ``Q(s, a)`` and ``Q(s, mu(s))`` share ``W2h relu(W1 s) + b2``
@@ -18,7 +20,8 @@ allocated once per batch size (``out=``), with no graph to build:
 * Adam runs once per network on flat views (parameters, gradients and moments are contiguous).
 
 The parameters stay the ``nn.Module`` parameters (state_dict keys and checkpoints unchanged);
-gradients live in one flat buffer laid out like the agent's flat parameter tensor.
+gradients are written into the parameters' ``.grad``, which the agent binds to views of one flat
+buffer, the same buffer its autograd update accumulates into and its Adam steps read.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from typing import NamedTuple
 
 import torch
 
-from formula_tourney.agents.networks import Actor, MLPCritic
+from formula_tourney.agents.networks import Actor, ActorPass, MLPCritic, addmm_operands
 
 aten = torch.ops.aten
 
@@ -43,36 +46,28 @@ class UpdateResult(NamedTuple):
 
 @dataclass
 class _Dense:
-    """One linear layer's parameters, the transposed view the GEMMs read, and gradient views."""
+    """One linear layer: its weight, ``(b, W^T)`` as the GEMMs read them, and its gradients."""
 
     w: torch.Tensor
     b: torch.Tensor | None
     wt: torch.Tensor
-    gw: torch.Tensor | None = None
-    gb: torch.Tensor | None = None
+    gw: torch.Tensor | None
+    gb: torch.Tensor | None
+
+    @property
+    def operands(self) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.b, self.wt  # type: ignore[return-value]
 
 
-def _dense(layer: torch.nn.Linear, grads: dict[int, torch.Tensor] | None = None) -> _Dense:
+def _dense(layer: torch.nn.Linear, with_grads: bool = True) -> _Dense:
+    """The layer's views; ``with_grads``: its ``.grad`` views too, which must be bound."""
     w, b = layer.weight, layer.bias
-    d = _Dense(w.detach(), None if b is None else b.detach(), w.detach().t())
-    if grads is not None:
-        d.gw = grads[id(w)]
-        d.gb = None if b is None else grads[id(b)]
-    return d
-
-
-def _grad_views(
-    flat: torch.Tensor, params: list[torch.Tensor]
-) -> tuple[torch.Tensor, dict[int, torch.Tensor]]:
-    """A gradient twin of ``flat`` and, per parameter (by id), the view at its place."""
-    grad = torch.zeros_like(flat)
-    views = {}
-    for p in params:
-        if p.untyped_storage().data_ptr() != flat.untyped_storage().data_ptr():
-            raise ValueError("MLPUpdate: parameters must be views of the flat parameter tensor")
-        offset = p.storage_offset() - flat.storage_offset()
-        views[id(p)] = grad[offset : offset + p.numel()].view(p.shape)
-    return grad, views
+    gw = gb = None
+    if with_grads:
+        gw, gb = w.grad, None if b is None else b.grad
+        if gw is None or (b is not None and gb is None):
+            raise ValueError("MLPUpdate: the online parameters' .grad must be bound buffers")
+    return _Dense(w.detach(), None if b is None else b.detach(), w.detach().t(), gw, gb)
 
 
 class _Workspace:
@@ -82,18 +77,15 @@ class _Workspace:
     ``y`` is formed), which keeps the working set small enough to stay in cache.
     """
 
-    def __init__(self, batch: int, h1a: int, h2a: int, h1c: int, h2c: int, dev: torch.device):
+    def __init__(self, batch: int, h1a: int, h2a: int, h1c: int, h2c: int, w_out: torch.Tensor):
         B = batch  # noqa: N806
-        z = {"dtype": torch.float32, "device": dev}
+        z = {"dtype": torch.float32, "device": w_out.device}
         self.batch = B
-        # actor (also the target actor): activations, pre-activation, action, their gradients
-        self.a1, self.a2 = torch.empty(B, h1a, **z), torch.empty(B, h2a, **z)
-        self.z, self.pi = torch.empty(B, 3, **z), torch.empty(B, 3, **z)
+        # actor (also the target actor): its forward's buffers, and their gradients
+        self.actor = ActorPass(B, (h1a, h2a), w_out)
+        self.a1, self.a2, self.pi = self.actor.a1, self.actor.a2, self.actor.pi
         self.ga1, self.ga2 = torch.empty(B, h1a, **z), torch.empty(B, h2a, **z)
         self.gpi, self.gz = torch.empty(B, 3, **z), torch.empty(B, 3, **z)
-        # steer and pedal columns, as cached views (slicing costs ~1.4 us per call)
-        self.z_steer, self.z_pedals = self.z[:, :1], self.z[:, 1:]
-        self.pi_steer, self.pi_pedals = self.pi[:, :1], self.pi[:, 1:]
         self.gpi_steer, self.gpi_pedals = self.gpi[:, :1], self.gpi[:, 1:]
         self.gz_steer, self.gz_pedals = self.gz[:, :1], self.gz[:, 1:]
         # critic: shared state path, then [Q(s, a); Q(s, mu(s))] stacked as 2B rows
@@ -101,6 +93,7 @@ class _Workspace:
         self.base = torch.empty(B, h2c, **z)
         self.h2 = torch.empty(2 * B, h2c, **z)  # relu(base + [a; mu(s)] W2a^T)
         self.m2 = torch.empty(2 * B, h2c, **z)  # relu'(h2) * w_out = dQ/d(h2 pre-activation)
+        self.w_out_rows = w_out.expand(2 * B, -1)  # the critic's output weight per row (a view)
         self.q = torch.empty(2 * B, 1, **z)
         self.g2 = torch.empty(B, h2c, **z)  # the critic loss's gradient at h2's pre-activation
         self.gq = torch.empty(B, 1, **z)  # dL(Q)/dQ(s, a)
@@ -119,83 +112,51 @@ class _Workspace:
 
 
 class MLPUpdate:
-    """Forward, backward, Adam and soft target update of one DDPG step, without autograd.
+    """Forward and backward of one DDPG step without autograd: gradients into the parameters'
+    bound ``.grad`` views (the agent then runs Adam and the soft target update).
 
-    Parameters and targets are the agent's; this object holds only views of them, the flat
-    gradient buffer and the per-batch-size workspace (the agent runs Adam and the soft update).
-    Parameters must not be rebound after construction: the agent keeps them as views of its
-    flat tensor, loading a checkpoint copies in place, and ``copy.deepcopy`` of an agent rebuilds
-    it rather than copying its tensors one by one.
+    Parameters and targets are the agent's; this object holds only views of them and the
+    per-batch-size workspace. Parameters must not be rebound after construction: the agent keeps
+    them as views of its flat tensor, loading a checkpoint copies in place, and
+    ``copy.deepcopy`` of an agent rebuilds it rather than copying its tensors one by one.
     """
 
     def __init__(
-        self,
-        actor: Actor,
-        critic: MLPCritic,
-        actor_target: Actor,
-        critic_target: MLPCritic,
-        online_flat: torch.Tensor,
+        self, actor: Actor, critic: MLPCritic, actor_target: Actor, critic_target: MLPCritic
     ) -> None:
         if actor.window != critic.window:
             raise ValueError("MLPUpdate: actor and critic must read the same window")
         self.window = critic.window
-        self.grad_flat, grads = _grad_views(
-            online_flat, [*actor.parameters(), *critic.parameters()]
-        )
-        n_actor = sum(p.numel() for p in actor.parameters())
-        # the flat gradient's two halves, laid out like the optimizers' flat parameters
-        self.actor_grad, self.critic_grad = self.grad_flat[:n_actor], self.grad_flat[n_actor:]
-        self.a_l1, self.a_l2, self.a_out = (
-            _dense(m, grads) for m in (actor.l1, actor.l2, actor.out)
-        )
+        self.a_l1, self.a_l2, self.a_out = (_dense(m) for m in (actor.l1, actor.l2, actor.out))
         self.c_l1, self.c_l2, self.c_act, self.c_out = (
-            _dense(m, grads) for m in (critic.l1, critic.l2, critic.l2_action, critic.out)
+            _dense(m) for m in (critic.l1, critic.l2, critic.l2_action, critic.out)
         )
-        self.ta_l1, self.ta_l2, self.ta_out = (
-            _dense(m) for m in (actor_target.l1, actor_target.l2, actor_target.out)
+        self.actor_layers = tuple(d.operands for d in (self.a_l1, self.a_l2, self.a_out))
+        self.target_actor_layers = tuple(
+            addmm_operands(m) for m in (actor_target.l1, actor_target.l2, actor_target.out)
         )
         self.tc_l1, self.tc_l2, self.tc_act, self.tc_out = (
-            _dense(m)
-            for m in (
-                critic_target.l1,
-                critic_target.l2,
-                critic_target.l2_action,
-                critic_target.out,
-            )
-        )
+            _dense(m, with_grads=False)
+            for m in (critic_target.l1, critic_target.l2, critic_target.l2_action,
+                      critic_target.out)
+        )  # fmt: skip
         self.sizes = (
             actor.l1.out_features, actor.l2.out_features,
             critic.l1.out_features, critic.l2.out_features,
         )  # fmt: skip
-        self.device = online_flat.device
         self._ws: _Workspace | None = None
-        self._w_out_rows: torch.Tensor | None = None
 
     def _workspace(self, batch: int) -> _Workspace:
         if self._ws is None or self._ws.batch != batch:
-            self._ws = _Workspace(batch, *self.sizes, self.device)
-            # the critic's output weight as a (2B, H2) broadcast view, read by the ReLU mask
-            self._w_out_rows = self.c_out.w.expand(2 * batch, -1)
+            self._ws = _Workspace(batch, *self.sizes, self.c_out.w)
         return self._ws
 
     # --- forward passes ------------------------------------------------------------------------
-    @staticmethod
-    def _actor_forward(
-        ws: _Workspace, x: torch.Tensor, l1: _Dense, l2: _Dense, out: _Dense
-    ) -> torch.Tensor:
-        """mu(x) into ``ws.pi``: tanh on steer, sigmoid on the pedals (no concatenation)."""
-        torch.relu_(torch.addmm(l1.b, x, l1.wt, out=ws.a1))
-        torch.relu_(torch.addmm(l2.b, ws.a1, l2.wt, out=ws.a2))
-        torch.addmm(out.b, ws.a2, out.wt, out=ws.z)
-        torch.tanh(ws.z_steer, out=ws.pi_steer)
-        torch.sigmoid(ws.z_pedals, out=ws.pi_pedals)
-        return ws.pi
-
     def _target(
         self, ws: _Workspace, x_next: torch.Tensor, rewards: torch.Tensor, discounts: torch.Tensor
     ) -> None:
         """Eq. (1) into ``ws.y``: r + d Q'(s', mu'(s')) with the target networks."""
-        mu = self._actor_forward(ws, x_next, self.ta_l1, self.ta_l2, self.ta_out)
+        mu = ws.actor(x_next, self.target_actor_layers)
         torch.relu_(torch.addmm(self.tc_l1.b, x_next, self.tc_l1.wt, out=ws.c1))
         h2 = torch.addmm(self.tc_l2.b, ws.c1, self.tc_l2.wt, out=ws.base)  # base: a free buffer
         torch.relu_(h2.addmm_(mu, self.tc_act.wt))
@@ -225,7 +186,7 @@ class MLPUpdate:
         Also leaves ``ws.m2`` = dQ/d(h2 pre-activation) for both row blocks: the actor's
         gradient and PER's grad_a Q read it.
         """
-        aten.threshold_backward.grad_input(self._w_out_rows, ws.h2, 0, grad_input=ws.m2)
+        aten.threshold_backward.grad_input(ws.w_out_rows, ws.h2, 0, grad_input=ws.m2)
         torch.mul(ws.m2_q, ws.gq, out=ws.g2)
         self._dense_backward(ws.gq, ws.gq_t, ws.h2_q, self.c_out)
         self._dense_backward(ws.g2, ws.g2_t, actions, self.c_act)
@@ -238,8 +199,10 @@ class MLPUpdate:
         """Actor gradients of eq. (3): -mean Q(s, mu(s)) through the action only."""
         # dL/dmu = -1/N dQ/da at a = mu(s); the scale is applied to the (B, 3) product
         torch.mm(ws.m2_pi, self.c_act.w, out=ws.gpi).mul_(-1.0 / ws.batch)
-        aten.tanh_backward.grad_input(ws.gpi_steer, ws.pi_steer, grad_input=ws.gz_steer)
-        aten.sigmoid_backward.grad_input(ws.gpi_pedals, ws.pi_pedals, grad_input=ws.gz_pedals)
+        aten.tanh_backward.grad_input(ws.gpi_steer, ws.actor.pi_steer, grad_input=ws.gz_steer)
+        aten.sigmoid_backward.grad_input(
+            ws.gpi_pedals, ws.actor.pi_pedals, grad_input=ws.gz_pedals
+        )
         self._dense_backward(ws.gz, ws.gz_t, ws.a2, self.a_out)
         torch.mm(ws.gz, self.a_out.w, out=ws.ga2)
         aten.threshold_backward.grad_input(ws.ga2, ws.a2, 0, grad_input=ws.ga2)
@@ -260,7 +223,7 @@ class MLPUpdate:
         weights: torch.Tensor,
         action_grad: bool = False,
     ) -> UpdateResult:
-        """Both networks' gradients into ``grad_flat`` (the optimizer step is the caller's).
+        """Both networks' gradients into their ``.grad`` (the optimizer step is the caller's).
 
         Observations are windows ``(B, w, D)``; rewards, discounts and weights ``(B,)``.
         """
@@ -270,7 +233,7 @@ class MLPUpdate:
             raise ValueError(f"MLPUpdate: windows of {self.window} expected")
         x, x_next = observations.view(B, -1), next_observations.view(B, -1)
         self._target(ws, x_next, rewards.view(B, 1), discounts.view(B, 1))
-        self._actor_forward(ws, x, self.a_l1, self.a_l2, self.a_out)
+        ws.actor(x, self.actor_layers)
         self._critic_forward(ws, x, actions)
         # dL/dQ(s_i, a_i) of eq. (2): -2/N w_i (y_i - Q_i)
         torch.sub(ws.y, ws.q_q, out=ws.td)

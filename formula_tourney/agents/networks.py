@@ -61,39 +61,56 @@ class Actor(nn.Module):
         return torch.cat([torch.tanh(z[:, :1]), torch.sigmoid(z[:, 1:])], dim=1)
 
 
-class GreedyAct:
-    """mu(s) for one observation window, computed into buffers allocated once: the acting step.
+def addmm_operands(layer: nn.Linear) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(b, W^T)`` of a layer as detached views, what ``addmm(b, x, W^T)`` reads; views follow
+    in-place weight updates and checkpoint loads."""
+    return layer.bias.detach(), layer.weight.detach().t()
 
-    Same arithmetic as ``Actor.forward`` on a batch of one. Without module calls, ``cat`` and
-    fresh tensors an action took ~100 instead of ~200 us here when run, as in training, between
-    updates that evict the caches. Reads the actor's parameters through views, so it follows
-    in-place updates and checkpoint loads (parameters must not be rebound).
+
+class ActorPass:
+    """``Actor.forward`` written into buffers allocated once for batch size ``B``.
+
+    The one hand-written actor forward: acting (``B = 1``, right after updates that evict the
+    caches) and the autograd-free update (online and target actor) both run it. No module calls,
+    no ``cat``, no fresh tensors: at batch 1 those cost more than the arithmetic.
     """
+
+    def __init__(self, batch: int, hidden: tuple[int, int], like: torch.Tensor) -> None:
+        self.batch = batch
+        self.a1, self.a2 = like.new_empty(batch, hidden[0]), like.new_empty(batch, hidden[1])
+        self.z, self.pi = like.new_empty(batch, 3), like.new_empty(batch, 3)
+        # steer and pedal columns as views made once (a slice costs ~1.4 us per call)
+        self.z_steer, self.z_pedals = self.z[:, :1], self.z[:, 1:]
+        self.pi_steer, self.pi_pedals = self.pi[:, :1], self.pi[:, 1:]
+
+    def __call__(
+        self, x: torch.Tensor, layers: tuple[tuple[torch.Tensor, torch.Tensor], ...]
+    ) -> torch.Tensor:
+        """mu(x) into ``self.pi`` from the ``(b, W^T)`` of the actor's three layers."""
+        (b1, w1), (b2, w2), (b3, w3) = layers
+        torch.relu_(torch.addmm(b1, x, w1, out=self.a1))
+        torch.relu_(torch.addmm(b2, self.a1, w2, out=self.a2))
+        torch.addmm(b3, self.a2, w3, out=self.z)
+        torch.tanh(self.z_steer, out=self.pi_steer)
+        torch.sigmoid(self.z_pedals, out=self.pi_pedals)
+        return self.pi
+
+
+class GreedyAct:
+    """mu(s) for one observation window: the acting step, through :class:`ActorPass`."""
 
     def __init__(self, actor: Actor) -> None:
         self.window = actor.window
-        layers = (actor.l1, actor.l2, actor.out)
-        self.weights_t = [m.weight.detach().t() for m in layers]
-        self.biases = [m.bias.detach() for m in layers]
-        like = actor.l1.weight
-        self.hidden = [like.new_empty(1, m.out_features) for m in (actor.l1, actor.l2)]
-        self.z, self.pi = like.new_empty(1, 3), like.new_empty(1, 3)
-        # steer and pedal columns as views made once (a slice costs ~1.4 us per call)
-        self.columns = (self.z[:, :1], self.pi[:, :1], self.z[:, 1:], self.pi[:, 1:])
+        self.layers = tuple(addmm_operands(m) for m in (actor.l1, actor.l2, actor.out))
+        hidden = (actor.l1.out_features, actor.l2.out_features)
+        self.forward = ActorPass(1, hidden, actor.l1.weight)
 
     @torch.no_grad()
     def __call__(self, obs_window: np.ndarray) -> np.ndarray:
         """Action ``(3,)`` for one window ``(w, obs_dim)`` (the actor reads its last rows)."""
-        x = torch.as_tensor(obs_window, dtype=torch.float32, device=self.z.device)
-        x = x[-self.window :].reshape(1, -1)
-        (w1, w2, w3), (b1, b2, b3), (h1, h2) = self.weights_t, self.biases, self.hidden
-        torch.relu_(torch.addmm(b1, x, w1, out=h1))
-        torch.relu_(torch.addmm(b2, h1, w2, out=h2))
-        torch.addmm(b3, h2, w3, out=self.z)
-        z_steer, pi_steer, z_pedals, pi_pedals = self.columns
-        torch.tanh(z_steer, out=pi_steer)
-        torch.sigmoid(z_pedals, out=pi_pedals)
-        return self.pi[0].cpu().numpy().copy()
+        x = torch.as_tensor(obs_window, dtype=torch.float32, device=self.forward.pi.device)
+        pi = self.forward(x[-self.window :].reshape(1, -1), self.layers)
+        return pi[0].cpu().numpy().copy()
 
 
 class MLPCritic(nn.Module):

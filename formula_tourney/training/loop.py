@@ -99,7 +99,6 @@ def train(
     after each episode; if it returns ``False`` the run stops early (time budgets, benchmarks) and
     still writes its summary. Raises DivergedError on NaN losses.
     """
-
     from formula_tourney.agents.ddpg import DDPGAgent, configure_torch, save_checkpoint
     from formula_tourney.agents.noise import BrakeExplorationNoise, linear_epsilon
     from formula_tourney.agents.replay import ObservationWindow, make_buffer
