@@ -67,23 +67,24 @@ def run_seed(
 
     configure_torch(1)
     from formula_tourney.bots.follower import drive
-    from formula_tourney.lines.registry import reference_offsets
-    from formula_tourney.lines.speed_profile import reference_limit_s
-    from formula_tourney.training.config import TrainConfig
-    from formula_tourney.training.loop import load_tracks, train
+    from formula_tourney.bots.reference import reference_offsets
+    from formula_tourney.lines.limit import reference_limit_s
+    from formula_tourney.sim.catalog import load_track
+    from formula_tourney.training.loop import train
+    from formula_tourney.training.spec import build_run_spec
 
-    track = load_tracks([track_name])[track_name]
+    track = load_track(track_name)
     offsets = reference_offsets(track, reference)
     bot = drive(track, offsets, laps=2)
     bot_lap = float(bot["best_lap_s"])
     limit = float(reference_limit_s(track))
     print(f"seed {seed}: bot {bot_lap:.3f} s, reference limit {limit:.3f} s", file=sys.stderr)
 
-    cfg = TrainConfig(
+    cfg = build_run_spec(
         variant="WIN1", overrides=overrides, train_tracks=[track_name], reference=reference,
-        episodes=100_000, seed=seed, max_steps=max_steps,
-        test_every_episodes=TEST_EVERY, test_starts=TEST_STARTS,
-        test_max_steps=int(3 * bot_lap / 0.2) + 100, device="cpu", threads=1,
+        seed=seed, device="cpu", threads=1,
+        schedule={"episodes": 100_000, "max_steps": max_steps, "test_every_episodes": TEST_EVERY,
+                  "test_starts": TEST_STARTS, "test_max_steps": int(3 * bot_lap / 0.2) + 100},
     )  # fmt: skip
     cpu0 = time.process_time()
     beaten: dict[str, float] = {}

@@ -29,7 +29,7 @@ def measure(file: Path, workers: int, results: Path) -> dict[str, float]:
     from formula_tourney.tourney.api import run_tournament
 
     started = time.perf_counter()
-    result = run_tournament(file, workers=workers, results_dir=results, show_progress=False)
+    result = run_tournament(file, workers=workers, results_dir=results)
     wall = time.perf_counter() - started
     db = sqlite3.connect(Path(result["results"]) / "index.sqlite")
     job_wall, train_s, jobs = db.execute(

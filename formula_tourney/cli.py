@@ -1,7 +1,8 @@
 """The ``formula-tourney`` command line: parses arguments and calls one function per command.
 
 Each command group lives in ``formula_tourney/commands/<area>.py`` and exposes
-``register(app)``; this file only assembles them and maps bad input to exit code 2.
+``register(app)``; this file only assembles them, maps bad input to exit code 2 and passes on the
+exit code a command chose (``run``: 3 when jobs failed, 130 when interrupted).
 """
 
 from __future__ import annotations
@@ -27,13 +28,15 @@ for module in (demo, tracks, lines, agents, tourney, report):
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Console entry point: a UserInputError becomes one line on stderr and exit code 2."""
+    """Console entry point: a UserInputError becomes one line on stderr and exit code 2; a
+    command's own exit code (``typer.Exit``) becomes the process's."""
     try:
-        app(args=argv, standalone_mode=False)
+        # Without standalone mode click *returns* the code of a typer.Exit instead of exiting.
+        code = app(args=argv, standalone_mode=False)
     except UserInputError as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
-    except typer.Exit as exc:  # raised by commands that decide their own exit code
+    except typer.Exit as exc:  # raised outside click's own handling
         sys.exit(exc.exit_code)
     except SystemExit:
         raise
@@ -47,6 +50,8 @@ def main(argv: list[str] | None = None) -> None:
             print("aborted", file=sys.stderr)
             sys.exit(130)
         raise
+    if isinstance(code, int) and code != 0:
+        sys.exit(code)
 
 
 if __name__ == "__main__":

@@ -17,21 +17,23 @@ from typing import Any
 
 from formula_tourney.errors import UserInputError
 
-_SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]{0,127}$")
+_SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,127}", re.ASCII)
+"""Matched with ``fullmatch``: ``$`` would also match before a final newline, so ``"bt\n"``
+passed; ASCII only, so no control, separator or look-alike Unicode character gets through."""
+
+
+def is_safe_name(name: object) -> bool:
+    """True if ``name`` can safely become one path component (see :func:`check_name`)."""
+    return isinstance(name, str) and _SAFE_NAME.fullmatch(name) is not None and ".." not in name
 
 
 def check_name(name: str, what: str = "name") -> str:
     """Return ``name`` if it can safely become one path component, else raise UserInputError."""
-    if (
-        not isinstance(name, str)
-        or not _SAFE_NAME.match(name)
-        or ".." in name
-        or "/" in name
-        or "\\" in name
-    ):
+    if not is_safe_name(name):
         raise UserInputError(
             f"invalid {what} {name!r}: use letters, digits, '_', '-', '.', '+' "
-            "(no path separators, no '..', at most 128 characters)"
+            "(no path separators, no '..', no spaces or control characters, at most 128 "
+            "characters, starting with a letter or digit)"
         )
     return name
 

@@ -1,8 +1,10 @@
-"""A realistic tournament folder in the store's layout, for the report's tests.
+"""A realistic tournament folder in the results layout, for the report's tests.
 
-It follows docs/CONTRACTS.md ("tourney store", "training (one run)") so that the report is tested
-against the contract, not against the store's code: index.sqlite (jobs, parts, baselines) and per
-job config.json, episodes/tests/laps parquet, traces/<track>.parquet and summary.json.
+Written through the one layout (``formula_tourney.results``): the index from
+``layout.INDEX_SCHEMA``, each job folder through ``JobFolder`` (config.json holding a run spec,
+episodes/tests/laps tables, traces/<track>.parquet, summary.json) and each baseline drive through
+``BaselineFolder``, so that the report is tested against the files the trainer and the store
+write, not against the store's code.
 
 Shape (mirrors the paper's studies at toy scale):
 - part1 (oval, MOT): win1, win4 (family win), ms3 (ms), per1m (per); 3 seeds. ms3 never laps
@@ -26,6 +28,9 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+
+from formula_tourney.results import layout as L
+from formula_tourney.results.folder import BaselineFolder, JobFolder
 
 NAN = float("nan")
 TEST_EPISODES = (100, 200, 300)
@@ -193,6 +198,30 @@ def _bot_trace(track: str, lap_s: float) -> pd.DataFrame:
     return pd.concat(pieces, ignore_index=True)
 
 
+def run_spec(job: dict[str, Any]) -> dict[str, Any]:
+    """A run specification as ``training.spec.RunSpec.to_json`` writes it (the agent settings
+    abridged: those the report reads, equal across entrants but for the ablation's flag)."""
+    return {
+        "variant": job["variant"],
+        "agent": {"window": 1, "hidden": [64, 64], "batch_size": 64,
+                  "adopted_target": True, **job["_overrides"]},
+        "env": {"control_period_s": 0.2, "physics_hz": 100, "damage_weight": 0.0},
+        "train_tracks": json.loads(job["train_tracks"]), "test_tracks": job["_tests"],
+        "reference": job["reference"], "lac": bool(job["lac"]),
+        "schedule": {"episodes": 300, "max_steps": 1000, "random_start": True,
+                     "test_every_episodes": 100, "test_starts": len(START_S_M),
+                     "test_max_steps": 1500, "save_test_checkpoints": True},
+        "seed": job["seed"], "device": "cpu", "threads": 1,
+    }
+
+
+def _laps_rows(tests: pd.DataFrame) -> list[dict[str, Any]]:
+    done = tests.loc[tests["finished"]]
+    return [{"episode": r.episode, "track": r.track, "start_s_m": r.start_s_m, "lap_index": 0,
+             "lap_time_s": r.best_lap_s, "lap_damage": r.damage, "clean": r.damage <= 0}
+            for r in done.itertuples()]
+
+
 def build_tournament(results_dir: Path, name: str = "fixture-cup") -> Path:
     """Write the fixture tournament under ``results_dir/name`` and return its folder."""
     root = Path(results_dir) / name
@@ -201,45 +230,29 @@ def build_tournament(results_dir: Path, name: str = "fixture-cup") -> Path:
     for job in jobs:
         if job["status"] == "running":
             continue  # a job that has not written anything yet
-        folder = root / job["path"]
-        (folder / "traces").mkdir(parents=True, exist_ok=True)
-        config = {
-            "variant": job["variant"], "overrides": job["_overrides"],
-            "train_tracks": json.loads(job["train_tracks"]), "reference": job["reference"],
-            "lac": bool(job["lac"]), "episodes": 300, "seed": job["seed"],
-            "test_tracks": job["_tests"], "entrant": job["entrant"], "family": job["family"],
-            "part": job["part"],
-        }
-        (folder / "config.json").write_text(json.dumps(config), encoding="utf-8")
-        _episode_rows(job).to_parquet(folder / "episodes.parquet", index=False)
+        folder = JobFolder(root / job["path"])
+        folder.write_config(run_spec(job))
+        episodes = _episode_rows(job).to_dict("records")
         if job["status"] == "failed":
-            continue  # diverged before its first test
+            folder.write_tables(episodes, [], [])  # diverged before its first test
+            continue
         tests = pd.DataFrame(_test_rows(job))
-        tests.to_parquet(folder / "tests.parquet", index=False)
-        laps = tests.loc[tests["finished"]].copy()
-        laps = pd.DataFrame({
-            "episode": laps["episode"], "track": laps["track"], "start_s_m": laps["start_s_m"],
-            "lap_index": 0, "lap_time_s": laps["best_lap_s"], "lap_damage": laps["damage"],
-            "clean": laps["damage"] <= 0,
-        })
-        laps.to_parquet(folder / "laps.parquet", index=False)
+        folder.write_tables(episodes, tests.to_dict("records"), _laps_rows(tests))
         # the stored trace is the best lap of a zero-damage model (all starts of one test)
         model_damage = tests.groupby(["episode", "track"])["damage"].transform("sum")
         clean = tests.loc[model_damage <= 0].dropna(subset=["best_lap_s"])
         for track, grp in clean.groupby("track"):
-            _trace(str(track), float(grp["best_lap_s"].min())).to_parquet(
-                folder / "traces" / f"{track}.parquet", index=False)
-        (folder / "summary.json").write_text(json.dumps({
+            folder.write_trace(str(track), _trace(str(track), float(grp["best_lap_s"].min())))
+        folder.write_summary({
             "best_lap_s": float(clean["best_lap_s"].min()) if not clean.empty else None,
             "episodes": 300, "finished": not clean.empty,
-        }), encoding="utf-8")
+        })
 
-    con = sqlite3.connect(root / "index.sqlite")
+    con = sqlite3.connect(root / L.INDEX_FILE)
+    con.executescript(L.INDEX_SCHEMA)
     cols = [c for c in jobs[0] if not c.startswith("_")]
-    con.execute(f"CREATE TABLE jobs ({', '.join(cols)}, PRIMARY KEY (job_id))")
-    con.executemany(f"INSERT INTO jobs VALUES ({', '.join('?' * len(cols))})",
+    con.executemany(f"INSERT INTO jobs ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})",
                     [tuple(j[c] for c in cols) for j in jobs])
-    con.execute("CREATE TABLE parts (part, study, position, status, entrants, promoted)")
     parts = [
         ("part1", "study1", 0, "done", ["win1", "win4", "ms3", "per1m"], ["win4", "per1m"]),
         ("part2", "study1", 1, "done", ["win4-mot", "win4-rc", "per1m-mot", "per1m-rc"],
@@ -248,11 +261,10 @@ def build_tournament(results_dir: Path, name: str = "fixture-cup") -> Path:
         ("ablation", "study1", 3, "done", ["win1", "win1-noat"], []),
         ("part4", "study2", 4, "pending", ["per1m-rc-lac"], []),
     ]
-    con.executemany("INSERT INTO parts VALUES (?, ?, ?, ?, ?, ?)",
+    con.executemany("INSERT INTO parts (part, study, position, status, entrants, promoted) "
+                    "VALUES (?, ?, ?, ?, ?, ?)",
                     [(p, s, pos, st, json.dumps(e), json.dumps(pr))
                      for p, s, pos, st, e, pr in parts])
-    con.execute("CREATE TABLE baselines (part, bot, track, reference, best_lap_s, damage, "
-                "finished, reference_limit_s, status, reason, path)")
     baselines = [
         ("part1", "follower", "oval", "recorded", 28.57, 0.0, 1, LIMIT_S["oval"]),
         ("part1", "genetic", "oval", "genetic", 33.86, 0.0, 1, LIMIT_S["oval"]),
@@ -266,21 +278,20 @@ def build_tournament(results_dir: Path, name: str = "fixture-cup") -> Path:
     ]
     rows = []
     for b in baselines:
-        rel = f"{b[0]}/_baselines/{b[1]}-{b[3]}-{b[2]}"
+        rel = L.baseline_rel_path(b[0], b[1], b[3], b[2])
         status = "done"
         reason = ""
         if b[1] == "genetic" and b[2] == "oval" and b[0] == "part3":
             status, reason = "failed", "TimeoutError: genetic search over budget"
         elif b[6]:
-            (root / rel).mkdir(parents=True, exist_ok=True)
-            _bot_trace(b[2], b[4]).to_parquet(root / rel / "trace.parquet", index=False)
+            folder = BaselineFolder(root / rel)
+            folder.write_trace(_bot_trace(b[2], b[4]))
+            folder.write_result({"best_lap_s": b[4], "damage": b[5], "finished": bool(b[6])})
         rows.append((*b, status, reason, rel))
     con.executemany("INSERT INTO baselines VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
     # The tournament's own choice of general models (tourney.api._select_general): for
     # per1m-rc it chose seed-1, although seed-0's train-track lap is faster, so a test can tell
     # that the report follows the store's choice.
-    con.execute("CREATE TABLE general_models (part, job_id PRIMARY KEY, entrant, seed, episode, "
-                "checkpoint, train_track, train_lap_s, laps, chosen)")
     con.execute("INSERT INTO general_models VALUES ('part3', 'part3/per1m-rc/seed-1', "
                 "'per1m-rc', 1, 300, 'checkpoints/ep-300.pt', 'technical', 67.87, '{}', 1)")
     con.commit()
@@ -292,12 +303,10 @@ def build_empty_tournament(results_dir: Path, name: str = "empty-cup") -> Path:
     """A tournament whose index exists but holds no job yet (just planned)."""
     root = Path(results_dir) / name
     root.mkdir(parents=True, exist_ok=True)
-    con = sqlite3.connect(root / "index.sqlite")
-    con.execute("CREATE TABLE jobs (job_id PRIMARY KEY, study, part, entrant, variant, family, "
-                "seed, reference, lac, train_tracks, status, reason, attempts, path, started_at, "
-                "finished_at, wall_s)")
-    con.execute("CREATE TABLE parts (part, study, position, status, entrants, promoted)")
-    con.execute("INSERT INTO parts VALUES ('part1', 'study1', 0, 'pending', '[\"win1\"]', '[]')")
+    con = sqlite3.connect(root / L.INDEX_FILE)
+    con.executescript(L.INDEX_SCHEMA)
+    con.execute("INSERT INTO parts (part, study, position, status, entrants, promoted) "
+                "VALUES ('part1', 'study1', 0, 'pending', '[\"win1\"]', '[]')")
     con.commit()
     con.close()
     return root

@@ -167,6 +167,32 @@ def test_checkpoint_round_trip_weights_only(tmp_path) -> None:
         load_checkpoint(tmp_path / "bad.pt")
 
 
+def _tampered(tmp_path, name: str, change) -> object:
+    state = DDPGAgent(get_variant("WIN1", SMALL), D, seed=0).state_dict()
+    change(state)
+    torch.save(state, tmp_path / name)
+    return tmp_path / name
+
+
+@pytest.mark.parametrize(
+    ("name", "change", "message"),
+    [
+        ("shapes.pt", lambda s: s.update(config=get_variant("WIN4", SMALL).model_dump(mode="json")),
+         "do not fit its config WIN4"),
+        ("nokey.pt", lambda s: s.pop("critic"), "incomplete: no critic"),
+        ("badcfg.pt", lambda s: s["config"].update(batch_size="many"), "bad agent config"),
+        ("unknown.pt", lambda s: s["config"].update(colour="red"), "bad agent config"),
+        ("dims.pt", lambda s: s.update(obs_dim=0), "bad sizes"),
+    ],
+)  # fmt: skip
+def test_bad_checkpoints_give_one_line_errors(tmp_path, name, change, message) -> None:
+    """Issue 10, item 10: another variant's shapes, a missing key or a bad config used to give
+    tracebacks from eval and replay."""
+    with pytest.raises(UserInputError, match=message) as err:
+        load_checkpoint(_tampered(tmp_path, name, change))
+    assert name in str(err.value) and "\n" not in str(err.value)
+
+
 def test_ddpg_learns_a_contextual_bandit() -> None:
     """One-step episodes (y = r): the actor must steer to +-0.5 by the sign of s_0."""
     cfg = get_variant(

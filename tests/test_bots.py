@@ -97,16 +97,17 @@ def test_technical_track_clean_and_near_the_limit():
 
 
 def test_registry_recorded_and_genetic_lines_are_driven(tmp_path, monkeypatch):
+    from formula_tourney.bots.reference import reference_offsets
     from formula_tourney.lines import registry
 
     monkeypatch.setenv(registry.CACHE_ENV_VAR, str(tmp_path))
     track = stadium()
-    mincurv = registry.reference_offsets(track, "mincurv")
-    recorded = registry.reference_offsets(track, "recorded")
+    mincurv = reference_offsets(track, "mincurv")
+    recorded = reference_offsets(track, "recorded")
     # RC: the follower's own lap on the min-curvature line, close to it and as fast in QSS.
     assert np.percentile(np.abs(recorded - mincurv), 95) < 1.0
     assert lap_time_s(track, recorded) < 1.03 * lap_time_s(track, mincurv)
-    genetic = registry.reference_offsets(track, "genetic")
+    genetic = reference_offsets(track, "genetic")
     assert lap_time_s(track, genetic) < lap_time_s(track, 0.0)
     driven = drive(track, genetic, laps=2)
     assert driven["finished"] and driven["damage"] == 0.0

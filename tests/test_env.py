@@ -14,7 +14,8 @@ from simtracks import stadium
 import formula_tourney  # noqa: F401  (registers FormulaRacing-v0)
 from formula_tourney.errors import UserInputError
 from formula_tourney.sim import kernels as K
-from formula_tourney.sim.env import FormulaRacingEnv, default_config
+from formula_tourney.sim.config import default_config
+from formula_tourney.sim.env import FormulaRacingEnv
 
 TRACK = stadium()  # 400 m straights, radius 80 m, 12 m wide; length ~1302.65 m
 INFO_KEYS = {"lap_times_s", "lap_damage", "last_lap_s", "best_lap_s", "laps", "damage",
@@ -68,8 +69,9 @@ def test_config_is_checked():
         "max_steps", "terminate_off_track", "terminate_backwards", "terminate_slow",
         "slow_speed_kmh", "slow_patience_steps", "damage_weight", "random_start",
         "start_speed_mps", "car"}
-    bad = [({"trak": "oval"}, "unknown key"), ({"physics_hz": 50}, "physics_hz"),
-           ({"max_steps": 0}, "max_steps"), ({"lac": "yes"}, "lac"),
+    bad = [({"trak": "oval"}, "unknown config key .trak.; known keys: car,"),
+           ({"physics_hz": 50}, "physics_hz"), ({"max_steps": 0}, "max_steps"),
+           ({"lac": "yes"}, "lac"),
            ({"reference_line": np.zeros(5)}, "reference_line"),
            ({"reference_line": "racing"}, "reference_line"), ({"car": {"mu": -1}}, "car"),
            ({"track": 3}, "track"), ({"lac_distances_m": []}, "lac_distances_m")]
@@ -218,3 +220,34 @@ def test_render_rgb_array_shows_the_car():
     assert tuple(frame[int(cy), int(cx)]) == (220, 30, 30)
     assert tuple(r.background[int(cy), int(cx)]) != (220, 30, 30)
     assert FormulaRacingEnv(config={"track": TRACK}).render() is None
+
+
+BAD_ACTIONS = [
+    (None, "shape"), (0.5, "shape"), ([0.0, 1.0], "shape"), (np.zeros(4, np.float32), "shape"),
+    (np.zeros((1, 3), np.float32), "shape"), ([math.nan, 0.5, 0.0], "finite"),
+    (np.array([0.0, math.inf, 0.0], np.float32), "finite"), ([0.0, 0.5, None], "finite"),
+    (["a", "b", "c"], "action"), ("abc", "shape"), ({"steer": 0.0}, "action"),
+]
+
+
+@pytest.mark.parametrize(("action", "match"), BAD_ACTIONS)
+def test_step_refuses_what_is_not_three_finite_numbers(action, match):
+    """NumPy used to broadcast 0.5 into all three controls and turn None into NaN controls."""
+    env = FormulaRacingEnv(config={"track": TRACK})
+    env.reset(options={"start_s_m": 100.0, "start_speed_mps": 20.0})
+    before = env._b.state.copy()
+    with pytest.raises(ValueError, match=match) as err:
+        env.step(action)
+    assert isinstance(err.value, gymnasium.error.InvalidAction)
+    assert "action" in str(err.value)
+    np.testing.assert_array_equal(env._b.state, before)  # nothing was integrated
+    # A plain list of three numbers is fine, and the env steps on normally after a refusal.
+    obs, _, term, _, info = env.step([0.0, 0.5, 0.0])
+    assert np.all(np.isfinite(obs)) and not term and info["speed_mps"] > 19.0
+
+
+def test_refused_step_through_gymnasium_make_names_the_index():
+    env = gymnasium.make("FormulaRacing-v0", config={"track": TRACK})
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"not finite at index \[\(1,\)\]"):
+        env.step(np.array([0.0, math.nan, 0.0], np.float32))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import gymnasium
 import numpy as np
 import pytest
@@ -70,7 +72,7 @@ def test_next_step_autoreset():
 def test_vector_env_arguments_are_checked():
     with pytest.raises(UserInputError, match="num_envs"):
         FormulaRacingVectorEnv(num_envs=0, config={"track": TRACK})
-    with pytest.raises(UserInputError, match="unknown key"):
+    with pytest.raises(UserInputError, match="unknown config key .speed."):
         FormulaRacingVectorEnv(num_envs=2, config={"track": TRACK, "speed": 1})
     venv = FormulaRacingVectorEnv(num_envs=2, config={"track": TRACK}, render_mode="rgb_array")
     venv.reset(seed=0)
@@ -90,3 +92,28 @@ def test_batched_autoreset_places_cars_like_a_single_reset():
         row = b.state[c].copy()
         b.reset_car(int(c), rng, {"start_s_m": float(s_c)})
         np.testing.assert_array_equal(row, b.state[c])
+
+
+@pytest.mark.parametrize(
+    ("actions", "match"),
+    [
+        (None, r"expected shape \(2, 3\)"),
+        (0.5, r"expected shape \(2, 3\)"),
+        (np.zeros(3, np.float32), r"got shape \(3,\)"),  # one car's action for two cars
+        (np.zeros((2, 2), np.float32), r"got shape \(2, 2\)"),
+        (np.zeros((3, 3), np.float32), r"got shape \(3, 3\)"),
+        ([[0.0, 1.0, 0.0], [0.0, math.nan, 0.0]], r"not finite at index \[\(1, 1\)\]"),
+        (np.array([[0, 1, 0], [-math.inf, 0, 0]], np.float32), r"index \[\(1, 0\)\]"),
+        ([[0.0, 1.0, 0.0], [0.0, 1.0]], "action"),
+    ],
+)
+def test_vector_step_refuses_bad_actions(actions, match):
+    venv = FormulaRacingVectorEnv(num_envs=2, config={"track": TRACK})
+    venv.reset(seed=0)
+    before = venv._b.state.copy()
+    with pytest.raises(ValueError, match=match) as err:
+        venv.step(actions)
+    assert isinstance(err.value, gymnasium.error.InvalidAction)
+    np.testing.assert_array_equal(venv._b.state, before)
+    obs, *_ = venv.step([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])  # nested lists are fine
+    assert obs.shape == (2, 29) and np.all(np.isfinite(obs))

@@ -289,3 +289,53 @@ def test_registry_caches_on_disk_keyed_by_car(tmp_path, monkeypatch):
     # A damaged entry is recomputed, not trusted.
     files[0].write_bytes(b"garbage")
     assert np.allclose(registry.reference_offsets(track, "mincurv"), first)
+
+
+def test_driven_lines_take_their_driver_as_an_argument(tmp_path, monkeypatch):
+    """``lines`` sits below ``bots``: the recorded line is driven by the driver passed in (here a
+    stand-in that drives the given line exactly), and without one it is a clear error."""
+    monkeypatch.setenv(registry.CACHE_ENV_VAR, str(tmp_path))
+    track = stadium()
+    calls: list[dict] = []
+
+    def exact_driver(trk, offsets, laps=2, car=None):
+        calls.append({"laps": laps, "car": car, "offsets": np.asarray(offsets)})
+        s = np.arange(0.0, 3 * trk.length_m, 4.0)  # run-up, two laps, 4 m per step
+        lateral = np.interp(s % trk.length_m, trk.s_m, offsets, period=trk.length_m)
+        x, y, _ = trk.pose_at(s % trk.length_m, lateral)
+        return {"trace": {"lap": (s // trk.length_m).astype(int), "x_m": x, "y_m": y}}
+
+    with pytest.raises(TypeError, match="bots.reference.reference_offsets"):
+        registry.reference_offsets(track, "recorded")
+    with pytest.raises(TypeError, match="driver"):
+        registry.reference_offsets(track, "genetic", use_cache=False)
+    car = CarParams(mu=1.5)
+    recorded = registry.reference_offsets(track, "recorded", car, exact_driver)
+    mincurv = registry.reference_offsets(track, "mincurv", car)
+    assert len(calls) == 1 and calls[0]["laps"] == 2 and calls[0]["car"] == car
+    np.testing.assert_array_equal(calls[0]["offsets"], mincurv)
+    assert np.percentile(np.abs(recorded - mincurv), 95) < 0.25  # the smoothing spline
+    # cached: asked again, the driver is not called
+    registry.reference_offsets(track, "recorded", car, exact_driver)
+    assert len(calls) == 1
+
+
+def test_bots_reference_passes_the_follower(monkeypatch):
+    from formula_tourney.bots import follower, reference
+
+    seen = []
+    monkeypatch.setattr(registry, "reference_offsets",
+                        lambda track, kind, car=None, driver=None: seen.append(driver) or kind)
+    assert reference.reference_offsets(stadium(), "genetic") == "genetic"
+    assert seen == [follower.drive]
+
+
+def test_reference_limit_is_the_qss_lap_on_the_mincurv_line(tmp_path, monkeypatch):
+    from formula_tourney.lines.limit import reference_limit_s
+
+    monkeypatch.setenv(registry.CACHE_ENV_VAR, str(tmp_path))
+    track = stadium()
+    car = CarParams(mu=1.4)
+    offsets = registry.reference_offsets(track, "mincurv", car)
+    assert reference_limit_s(track, car) == lap_time_s(track, offsets, car)
+    assert reference_limit_s(track) < lap_time_s(track, 0.0)

@@ -17,7 +17,7 @@ def fake_catalog(monkeypatch, tmp_path):
     """Serve a small synthetic track under any name (the CLI's only catalog use)."""
     monkeypatch.setenv("FORMULA_TOURNEY_CACHE_DIR", str(tmp_path / "cache"))
     track = stadium()
-    monkeypatch.setattr(lines_cmd, "_load", lambda name: track)
+    monkeypatch.setattr(lines_cmd, "load_track", lambda name: track)
     return track
 
 

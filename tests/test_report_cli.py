@@ -12,13 +12,15 @@ import numpy as np
 import pandas as pd
 import pytest
 from PIL import Image
-from report_fixtures import build_tournament
+from report_fixtures import _bot_trace, _trace, build_tournament, template_lap
 
 from formula_tourney.cli import main
 from formula_tourney.errors import UserInputError
 from formula_tourney.report import plots
 from formula_tourney.report.build import build_report
-from formula_tourney.report.replay import record_lap, write_gif
+from formula_tourney.report.load import load_tournament
+from formula_tourney.results.folder import BaselineFolder, JobFolder
+from formula_tourney.training.replay import record_lap, write_gif
 
 
 @pytest.fixture(scope="module")
@@ -62,8 +64,40 @@ def test_report_terminal_lists_problems_and_renders(results: Path, capsys) -> No
 def test_report_bad_input_exits_2(results: Path, capsys) -> None:
     code, _, err = _run(["report", "--results", str(results), "--tournament", "nope"], capsys)
     assert code == 2 and "no tournament 'nope'" in err
-    code, _, err = _run(["report", "--results", str(results), "--latex", "--html"], capsys)
-    assert code == 2 and "choose one output format" in err
+
+
+def test_report_garbage_index_exits_2_naming_the_file(tmp_path: Path, capsys) -> None:
+    root = tmp_path / "broken-cup"
+    root.mkdir()
+    (root / "index.sqlite").write_bytes(b"this is not an SQLite database, just text\n" * 40)
+    code, out, err = _run(["report", "--results", str(tmp_path)], capsys)
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and err.startswith("error: ")
+    assert str(root / "index.sqlite") in err and "not a results index" in err
+    code, _, err = _run(["report", "--results", str(tmp_path), "--tournament",
+                         str(tmp_path / "nowhere")], capsys)
+    assert code == 2 and "no tournament" in err
+
+
+def test_report_writes_several_formats_in_one_call(results: Path, tmp_path: Path,
+                                                   capsys) -> None:
+    code, out, err = _run(["report", "--results", str(results), "--part", "part1", "--out",
+                           str(tmp_path), "--markdown", "--latex", "--html", "--no-figures"],
+                          capsys)
+    assert code == 0, err
+    md = (tmp_path / "report.md").read_text()
+    assert out.strip() == md.strip()  # stdout is the Markdown document alone
+    assert "| win4 | **27.07** | **27.17** |" in md
+    assert "\\textbf{27.07}" in (tmp_path / "tables.tex").read_text()
+    assert "<td class='best'>27.07</td>" in (tmp_path / "report.html").read_text()
+    assert f"wrote report.html: {tmp_path / 'report.html'}" in " ".join(err.split())
+    code, out, _ = _run(["report", "--results", str(results), "--part", "part1", "--out",
+                         str(tmp_path / "two"), "--latex", "--html", "--no-figures", "--json"],
+                        capsys)
+    doc = json.loads(out)
+    assert code == 0 and doc["formats"] == ["latex", "html"]
+    assert {"tables.tex", "table1.tex", "report.html"} <= set(doc["files"])
+    assert "report.md" not in doc["files"]
 
 
 def test_report_empty_part_does_not_crash(results: Path, capsys) -> None:
@@ -76,7 +110,8 @@ def test_report_empty_part_does_not_crash(results: Path, capsys) -> None:
 
 
 def test_latex_is_standalone_and_compiles(results: Path, tmp_path: Path) -> None:
-    rep = build_report("fixture-cup", results, out_dir=tmp_path, fmt="latex", figures=False)
+    rep = build_report("fixture-cup", results, out_dir=tmp_path, formats=["latex"],
+                       figures=False)
     tex = rep.files["tables.tex"].read_text()
     assert tex.startswith("\\documentclass")
     assert tex.count("\\begin{table}") == tex.count("\\end{table}") == 7  # 4 parts + 3
@@ -94,7 +129,7 @@ def test_latex_is_standalone_and_compiles(results: Path, tmp_path: Path) -> None
 
 
 def test_html_and_figures_for_a_generalisation_part(results: Path, tmp_path: Path) -> None:
-    rep = build_report("fixture-cup", results, part="part3", out_dir=tmp_path, fmt="html")
+    rep = build_report("fixture-cup", results, part="part3", out_dir=tmp_path, formats="html")
     names = set(rep.figures)
     assert {"learning-part3", "generalisation-per1m-rc", "trace-part3-technical-rc-lac",
             "line-part3-technical-rc-lac", "delta-part3-technical-rc-lac"} <= names
@@ -113,9 +148,48 @@ def test_html_and_figures_for_a_generalisation_part(results: Path, tmp_path: Pat
     assert not any("baseline trace" in p for p in rep.data.problems)
 
 
-def test_figures_compare_with_the_followers_stored_lap(results: Path) -> None:
-    from formula_tourney.report.load import load_tournament
+def _sampled(trace: pd.DataFrame, times: np.ndarray) -> pd.DataFrame:
+    """``trace`` sampled at ``times`` (control steps), its ``lap`` count held between steps."""
+    t = trace["time_s"].to_numpy()
+    out = pd.DataFrame({c: np.interp(times, t, trace[c].to_numpy(dtype=float))
+                        for c in trace.columns if c != "lap"})
+    if "lap" in trace.columns:
+        out["lap"] = trace["lap"].to_numpy()[np.searchsorted(t, times, side="right") - 1]
+    return out
 
+
+def test_racing_line_titles_show_the_tables_lap_times(tmp_path: Path, monkeypatch) -> None:
+    """Traces are sampled every control step (200 ms), so the first sample of a lap comes up to
+    a step after the line: a title measured from the trace said 35.80 s where Table 1 said 35.97.
+    The titles must print the tables' numbers."""
+    root = build_tournament(tmp_path)
+    lap_s = template_lap("oval", "win4", 0, 300, 0)  # win4 seed-0: Table 1's bLT
+    steps = lap_s - 0.2 * np.arange(int(lap_s / 0.2) + 1)[::-1]  # as training.evaluate cuts
+    JobFolder(root / "part1/win4/seed-0").write_trace(
+        "oval", _sampled(_trace("oval", lap_s), steps))
+    bot = _bot_trace("oval", 28.57)
+    BaselineFolder(root / "part1/_baselines/follower-recorded-oval").write_trace(
+        _sampled(bot, np.arange(0.0, float(bot["time_s"].iloc[-1]), 0.2)))
+    titles: dict[str, list[str]] = {}
+    real_save = plots.save_figure
+
+    def spy(fig, out_base: Path) -> list[Path]:
+        titles[out_base.name] = [ax.get_title() for ax in fig.axes]
+        return real_save(fig, out_base)
+
+    monkeypatch.setattr(plots, "save_figure", spy)
+    rep = build_report(str(root), tmp_path, part="part1", out_dir=tmp_path / "out")
+    table1 = next(t for t in rep.tables if t.key == "table1")
+    group = "part1: oval MOT"
+    win4 = next(r for r in table1.records if r["group"] == group and r["row"] == "win4")
+    text = {r["label"]: r["text"][(group, "bLT")] for r in table1.rows}
+    assert win4["bLT"] == pytest.approx(lap_s)
+    shown = [f"win4 (seed-0): {text['win4']} s", f"Follower (Tita): {text['Follower (Tita)']} s"]
+    assert shown == ["win4 (seed-0): 27.07 s", "Follower (Tita): 28.57 s"]
+    assert titles["line-part1-oval-mot"][:2] == shown
+
+
+def test_figures_compare_with_the_followers_stored_lap(results: Path) -> None:
     data = load_tournament(results / "fixture-cup", part="part2")
     label, trace = plots.bot_trace(data, "part2", "technical")
     assert label == "Follower (Tita)"
@@ -126,8 +200,6 @@ def test_figures_compare_with_the_followers_stored_lap(results: Path) -> None:
 
 
 def test_ablation_pairs_and_plot(results: Path, tmp_path: Path) -> None:
-    from formula_tourney.report.load import load_tournament
-
     data = load_tournament(results / "fixture-cup")
     pairs = plots.ablation_pairs(data)
     assert pairs == [{"part": "ablation", "flag": "adopted_target", "off": "win1-noat",
@@ -225,15 +297,16 @@ def test_replay_end_to_end(tmp_path: Path, capsys) -> None:
 
     import formula_tourney  # noqa: F401 (registers the env)
     from formula_tourney.agents.ddpg import DDPGAgent, save_checkpoint
-    from formula_tourney.agents.variants import AgentConfig
+    from formula_tourney.training.spec import build_run_spec
 
     env = gym.make("FormulaRacing-v0", config={"track": "oval"})
     obs_dim = int(np.prod(env.observation_space.shape))
     env.close()
-    job = tmp_path / "job"
-    agent = DDPGAgent(AgentConfig(hidden=(16, 16)), obs_dim)
-    ckpt = save_checkpoint(agent, job / "checkpoints" / "best.pt")
-    (job / "config.json").write_text(json.dumps({"reference": "centre", "lac": False}))
+    # a checkpoint carries its run spec (training.checkpoint), as the trainer writes it
+    spec = build_run_spec(variant="WIN1", overrides={"hidden": (16, 16)}, train_tracks=["oval"])
+    agent = DDPGAgent(spec.agent, obs_dim)
+    ckpt = save_checkpoint(agent, tmp_path / "job" / "checkpoints" / "best.pt",
+                           extra={"run_spec": spec.to_json()})
     code, out, _ = _run(["replay", str(ckpt), "--track", "oval", "--gif",
                          str(tmp_path / "lap.gif"), "--max-steps", "12", "--frame-every", "3",
                          "--json"], capsys)

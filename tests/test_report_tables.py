@@ -1,4 +1,4 @@
-"""report.load and report.tables on the fixture tournament: numbers computed by hand."""
+"""report.load and the paper's tables on the fixture tournament: numbers computed by hand."""
 
 from __future__ import annotations
 
@@ -15,8 +15,10 @@ from report_fixtures import (
 )
 
 from formula_tourney.errors import UserInputError
-from formula_tourney.report import tables
+from formula_tourney.report import paper_tables, render
 from formula_tourney.report.load import TournamentData, load_tournament, resolve_tournament
+from formula_tourney.report.paper_tables import LIMIT_LABEL, Context, build_tables
+from formula_tourney.report.table_model import ReportTable
 
 E2 = 2.0 * math.exp(-2.0)  # the template's learning term at episode 300
 
@@ -35,15 +37,15 @@ def data(results: Path) -> TournamentData:
 
 
 @pytest.fixture(scope="module")
-def built(data: TournamentData) -> dict[str, tables.ReportTable]:
-    return {t.key: t for t in tables.build_tables(data)}
+def built(data: TournamentData) -> dict[str, ReportTable]:
+    return {t.key: t for t in build_tables(Context.build(data))}
 
 
-def _record(table: tables.ReportTable, group: str, row: str) -> dict:
+def _record(table: ReportTable, group: str, row: str) -> dict:
     return next(r for r in table.records if r.get("group") == group and r["row"] == row)
 
 
-def _row(table: tables.ReportTable, label: str) -> dict:
+def _row(table: ReportTable, label: str) -> dict:
     return next(r for r in table.rows if r["label"] == label)
 
 
@@ -70,7 +72,7 @@ def test_resolve_tournament(results: Path) -> None:
         load_tournament(results / "fixture-cup", part="nope")
 
 
-def test_table1_hand_computed(built: dict[str, tables.ReportTable]) -> None:
+def test_table1_hand_computed(built: dict[str, ReportTable]) -> None:
     t1 = built["table1"]
     assert t1.groups[:3] == ["part1: oval MOT", "part2: technical MOT", "part2: technical RC"]
     # win1 (WIN1_PART1): seed bests 27.1, 27.4, 27.2 (26.5 came with damage)
@@ -97,26 +99,26 @@ def test_table1_hand_computed(built: dict[str, tables.ReportTable]) -> None:
     assert _row(t1, "win4")["text"][("part2: technical RC", "runs")] == "2/3"
 
 
-def test_table1_baselines_limit_and_bold(built: dict[str, tables.ReportTable]) -> None:
+def test_table1_baselines_limit_and_bold(built: dict[str, ReportTable]) -> None:
     t1 = built["table1"]
     group = "part1: oval MOT"
     assert _row(t1, "Follower (Tita)")["values"][(group, "bLT")] == pytest.approx(28.57)
     assert _row(t1, "Genetic")["values"][(group, "bLT")] == pytest.approx(33.86)
-    limit = _row(t1, tables.LIMIT_LABEL)
+    limit = _row(t1, LIMIT_LABEL)
     assert limit["values"][(group, "bLT")] == pytest.approx(25.80)
     assert limit["text"][(group, "gap")] == "+0.0%"
     assert _row(t1, "Follower (Tita)")["text"][(group, "gap")] == "+10.7%"
     best = t1.best_cells()
     labels = {(t1.rows[i]["label"], g, m) for i, g, m in best}
     assert ("win4", group, "bLT") in labels and ("win4", group, "aLT") in labels
-    assert not any(lab == tables.LIMIT_LABEL for lab, _, _ in labels)
+    assert not any(lab == LIMIT_LABEL for lab, _, _ in labels)
     # on the technical track with MOT the bot is fastest, and it is bold there
     assert ("Follower (Tita)", "part2: technical MOT", "bLT") in labels
     # the ablation pair shares a variant: its rows are named by entrant
     assert {"win1", "win1-noat"} <= {r["label"] for r in t1.rows}
 
 
-def test_comparisons(built: dict[str, tables.ReportTable]) -> None:
+def test_comparisons(built: dict[str, ReportTable]) -> None:
     comp = built["comparisons"]
     rec = next(r for r in comp.records if r["group"] == "part1: oval MOT" and r["row"] == "win1")
     assert rec["leader"] == "win4"
@@ -125,11 +127,11 @@ def test_comparisons(built: dict[str, tables.ReportTable]) -> None:
     assert 0.0 <= rec["low"] <= rec["prob_faster"] <= rec["high"] <= 1.0
 
 
-def test_table2_lac(built: dict[str, tables.ReportTable]) -> None:
+def test_table2_lac(built: dict[str, ReportTable]) -> None:
     t2 = built["table2"]
     assert t2.groups == ["oval", "technical"]
     assert [r["label"] for r in t2.rows] == [
-        "Follower (Tita)", "per1m MOT", "per1m RC", "per1m RC + LAC", tables.LIMIT_LABEL]
+        "Follower (Tita)", "per1m MOT", "per1m RC", "per1m RC + LAC", LIMIT_LABEL]
     lac = _row(t2, "per1m RC + LAC")
     assert lac["values"][("technical", "bLT")] == pytest.approx(66.0 - 1.0 + E2)
     assert lac["text"][("oval", "bLT")] == "-"  # never trained on the oval
@@ -138,7 +140,7 @@ def test_table2_lac(built: dict[str, tables.ReportTable]) -> None:
     assert _row(t2, "Follower (Tita)")["values"][("technical", "bLT")] == pytest.approx(68.11)
 
 
-def test_table3_general_models(built: dict[str, tables.ReportTable]) -> None:
+def test_table3_general_models(built: dict[str, ReportTable]) -> None:
     t3 = built["table3"]
     assert t3.metrics["General"] == ["technical", "oval", "flowing"]
     rc = _row(t3, "per1m RC")
@@ -150,14 +152,19 @@ def test_table3_general_models(built: dict[str, tables.ReportTable]) -> None:
     # computed by the report: best train lap among checkpoints finishing every track
     lac = _row(t3, "per1m RC + LAC")
     assert lac["values"][("General", "oval")] == pytest.approx(26.5 - 1.0 + E2 + 7.0)
+    # per1m MOT never finishes the unseen flowing track: no checkpoint is a general model, and
+    # the row says so instead of showing the model finishing the most tracks
     mot = _row(t3, "per1m MOT")
-    assert mot["text"][("General", "flowing")] == "DNF"
-    assert mot["values"][("General", "technical")] == pytest.approx(72.0 + E2)
+    assert [mot["text"][("General", t)] for t in ("technical", "oval", "flowing")] == [
+        paper_tables.NO_GENERAL] * 3
+    assert math.isnan(mot["values"][("General", "technical")])
+    assert mot["values"][("Best", "bLT")] == pytest.approx(66.0 + 6.0 + E2)
+    assert any(n.startswith("per1m MOT: no general model") for n in t3.notes)
+    assert next(r for r in t3.records if r["row"] == "per1m MOT")["general"] is None
     # the genetic bot drove the flowing track without finishing (DNF); its oval drive failed,
     # so part 3 has no genetic oval lap and the best over parts (part 1's) is shown
     assert _row(t3, "Genetic")["text"][("General", "flowing")] == "DNF"
     assert _row(t3, "Genetic")["values"][("General", "oval")] == pytest.approx(33.86)
-    assert any("per1m MOT" in n and "not every track" in n for n in t3.notes)
     assert any("part3/per1m-rc/seed-1 after 300" in n for n in t3.notes)
     # bold per General column too: the LAC model on the technical track, the bot elsewhere
     best = {(t3.rows[i]["label"], g, m) for i, g, m in t3.best_cells()}
@@ -168,10 +175,10 @@ def test_table3_general_models(built: dict[str, tables.ReportTable]) -> None:
 def test_empty_part_and_empty_tournament_render(results: Path) -> None:
     for root, part in ((results / "fixture-cup", "part4"), (results / "empty-cup", None)):
         data = load_tournament(root, part=part)
-        built = tables.build_tables(data)
+        built = build_tables(Context.build(data))
         assert all(t.empty for t in built)
-        assert "no jobs" in tables.render_markdown(built[0])
-        doc = tables.latex_document(built, "x", data.problems)
+        assert "no jobs" in render.render_markdown(built[0])
+        doc = render.latex_document(built, "x", data.problems)
         assert doc.rstrip().endswith("\\end{document}")
 
 
@@ -183,20 +190,21 @@ def test_unreadable_files_become_problems(tmp_path: Path) -> None:
         con.execute("DROP TABLE baselines")
     data = load_tournament(root, part="part1")
     problems = "\n".join(data.problems)
-    assert "part1/win4/seed-0: cannot read tests" in problems
-    assert "table 'baselines' unreadable" in problems
+    bad = root / "part1" / "win4" / "seed-0" / "tests.parquet"
+    assert f"part1/win4/seed-0: {bad}: cannot read the job's tests table" in problems
+    assert "table 'baselines' missing" in problems
     assert "part1/per1m/seed-2: marked done but" in problems and "(missing)" in problems
-    t1 = tables.build_tables(data)[0]
+    t1 = build_tables(Context.build(data))[0]
     win4 = _record(t1, "part1: oval MOT", "win4")
     assert win4["runs"] == 2 and win4["planned"] == 3
     assert [r["kind"] for r in t1.rows].count("bot") == 0
 
 
-def test_markdown_and_latex_render(built: dict[str, tables.ReportTable]) -> None:
-    md = tables.render_markdown(built["table1"])
+def test_markdown_and_latex_render(built: dict[str, ReportTable]) -> None:
+    md = render.render_markdown(built["table1"])
     assert "| win4 | **27.07** | **27.17** | [27.07, 27.27] |" in md
     assert "| ms3 | DNF | DNF |" in md
-    tex = tables.render_latex_tabular(built["table1"].subset(["part1: oval MOT"]))
+    tex = render.render_latex_tabular(built["table1"].subset(["part1: oval MOT"]))
     assert "\\toprule" in tex and "\\bottomrule" in tex and "\\cmidrule(lr){2-8}" in tex
     assert "win4 & \\textbf{27.07} & \\textbf{27.17} & [27.07, 27.27]" in tex
     assert "27.10 & 27.23" in tex and "+5.0\\%" in tex
@@ -206,13 +214,13 @@ def test_markdown_and_latex_render(built: dict[str, tables.ReportTable]) -> None
 
 
 def test_terminal_table_never_cuts_numbers_on_a_narrow_console(
-    built: dict[str, tables.ReportTable],
+    built: dict[str, ReportTable],
 ) -> None:
     """A piped or 80-column console used to shrink cells to '27.…'; the numbers must stay whole."""
     from rich.console import Console
 
     console = Console(width=40, record=True, color_system=None)
-    tables.render_rich(built["table1"], console)
+    render.render_rich(built["table1"], console)
     text = console.export_text()
     assert "…" not in text
     assert "27.10" in text  # win1's bLT on the oval, computed by hand above

@@ -102,17 +102,18 @@ def test_unfinished_can_be_classified_by_distance() -> None:
 def test_general_model_is_best_on_train_track_among_checkpoints_finishing_unseen(
     tmp_path,
 ) -> None:
-    """Study 2's rule, on a tests.parquet laid out as training.loop writes it."""
+    """Study 2's rule (results.metrics.general_model), read from a job folder's tests.parquet as
+    the trainer writes it."""
     import pandas as pd
 
-    from formula_tourney.tourney.runner import general_candidates
+    from formula_tourney.tourney.outcomes import general_pick
 
     def row(episode: int, track: str, lap: float | None, start: float = 0.0) -> dict:
         return {"episode": episode, "env_steps": episode * 100, "track": track,
                 "start_s_m": start, "finished": lap is not None,
                 "best_lap_s": math.nan if lap is None else lap, "laps": int(lap is not None),
                 "damage": 0.0, "reward": 0.0, "steps": 10, "termination": "max_steps",
-                "checkpoint": f"checkpoints/ep-{episode}.pt"}
+                "checkpoint": f"checkpoints/ep-{episode}.pt", "distance_m": 100.0}
 
     rows = [
         # episode 100: fast on the train track but does not finish 'flowing'
@@ -124,12 +125,18 @@ def test_general_model_is_best_on_train_track_among_checkpoints_finishing_unseen
         row(300, "technical", 70.0), row(300, "oval", 27.0), row(300, "flowing", 79.0),
     ]
     pd.DataFrame(rows).to_parquet(tmp_path / "tests.parquet")
-    pick = general_candidates(tmp_path, "technical", ["technical", "oval", "flowing"], 0.5)
-    assert pick == {"episode": 200, "train_track": "technical", "train_lap_s": 68.0,
+    tracks = ["technical", "oval", "flowing"]
+    pick = general_pick(tmp_path, "p/E/seed-0", "technical", tracks, 0.5)
+    assert pick == {"job_id": "p/E/seed-0", "episode": 200, "train_track": "technical",
+                    "train_lap_s": 68.0,
                     "laps": {"technical": 68.0, "oval": 27.5, "flowing": 80.0},
                     "checkpoint": "checkpoints/ep-200.pt"}
-    strict = general_candidates(tmp_path, "technical", ["technical", "oval", "flowing"], 1.0)
+    strict = general_pick(tmp_path, "j", "technical", tracks, 1.0)
     assert strict is not None and strict["episode"] == 300
-    oval_pick = general_candidates(tmp_path, "oval", ["oval", "flowing"], 1.0)
+    oval_pick = general_pick(tmp_path, "j", "oval", ["oval", "flowing"], 1.0)
     assert oval_pick is not None and oval_pick["episode"] == 300
-    assert general_candidates(tmp_path / "missing", "oval", ["oval"], 0.5) is None
+    assert general_pick(tmp_path / "missing", "j", "oval", ["oval"], 0.5) is None
+    # a damaged lap is no clean lap: episode 300's oval lap no longer counts
+    rows[-2]["damage"] = 1.0
+    pd.DataFrame(rows).to_parquet(tmp_path / "tests.parquet")
+    assert general_pick(tmp_path, "j", "oval", ["oval", "flowing"], 0.5)["train_lap_s"] == 27.5

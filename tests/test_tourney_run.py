@@ -91,7 +91,7 @@ def test_lock_refuses_a_second_run(tmp_path: Path) -> None:
     path = tiny(tmp_path)
     with RunLock(tmp_path / "res" / "tiny"), pytest.raises(UserInputError,
                                                            match="another run is using"):
-        run_tournament(path, workers=1, results_dir=tmp_path / "res", show_progress=False)
+        run_tournament(path, workers=1, results_dir=tmp_path / "res")
     assert not (tmp_path / "res" / "tiny" / "index.sqlite").exists()
     # released: a later lock succeeds
     with RunLock(tmp_path / "res" / "tiny"):
@@ -103,8 +103,7 @@ def test_failure_isolation_and_retries(tmp_path: Path, monkeypatch: pytest.Monke
     monkeypatch.setenv(FAULTS_ENV, json.dumps(
         {"p1/MS2-*": "raise", "p1/PER40k-*": "diverge", "p1/WIN4-*": "exit"}))
     path = tiny(tmp_path, '["WIN1", "MS2", "PER40k", "WIN4"]', PROMOTED_P2)
-    result = run_tournament(path, workers=2, retries=1, results_dir=tmp_path / "res",
-                            show_progress=False)
+    result = run_tournament(path, workers=2, retries=1, results_dir=tmp_path / "res")
     jobs = rows(tmp_path / "res")
     assert jobs["p1/WIN1-MOT/seed-0"]["status"] == "done"
     assert jobs["p1/MS2-MOT/seed-0"]["reason"].startswith("InjectedFault: injected fault")
@@ -184,8 +183,7 @@ def test_kill_9_of_the_parent_then_resume(tmp_path: Path) -> None:
     else:
         raise AssertionError("worker outlived its parent")
     assert rows(tmp_path / "res")["p1/MS2-MOT/seed-0"]["status"] == "running"
-    result = run_tournament(tiny(tmp_path), workers=2, results_dir=tmp_path / "res",
-                            show_progress=False)
+    result = run_tournament(tiny(tmp_path), workers=2, results_dir=tmp_path / "res")
     assert result["this_run"]["skipped"] == 1  # p1's WIN1 was not trained again
     jobs = rows(tmp_path / "res")
     assert jobs["p1/WIN1-MOT/seed-0"]["attempts"] == 1
@@ -195,8 +193,7 @@ def test_kill_9_of_the_parent_then_resume(tmp_path: Path) -> None:
     tests = store.read_job_table("p1/WIN1-MOT/seed-0", "tests")
     assert list(tests["track"].unique()) == ["oval"]
     # a third run has nothing left to do
-    again = run_tournament(tiny(tmp_path), workers=2, results_dir=tmp_path / "res",
-                           show_progress=False)
+    again = run_tournament(tiny(tmp_path), workers=2, results_dir=tmp_path / "res")
     assert again["this_run"]["done"] == 0 and again["this_run"]["skipped"] == 3
     base = store.baselines()
     assert list(base["status"]) == ["done"] and base["reference_limit_s"].iloc[0] > 10.0
@@ -207,8 +204,7 @@ def test_ray_local_run(tmp_path: Path) -> None:
     pytest.importorskip("ray")
     path = tmp_path / "tiny.toml"
     path.write_text(TINY.format(entrants='["WIN1"]', p2=""), encoding="utf-8")
-    result = run_tournament(path, workers=1, executor="ray", results_dir=tmp_path / "res",
-                            show_progress=False)
+    result = run_tournament(path, workers=1, executor="ray", results_dir=tmp_path / "res")
     jobs = rows(tmp_path / "res")
     assert [j["status"] for j in jobs.values()] == ["done"]
     assert result["executor"] == "ray"

@@ -9,8 +9,11 @@ from pathlib import Path
 import pytest
 
 from formula_tourney.errors import UserInputError
+from formula_tourney.tourney.best_params import write_best_params
 from formula_tourney.tourney.spec import load_spec
-from formula_tourney.tourney.tune import load_tune_spec, run_tune, suggest, write_best_params
+from formula_tourney.tourney.tune import run_tune
+from formula_tourney.tourney.tune_spec import load_tune_spec
+from formula_tourney.tourney.tune_study import suggest
 
 TUNE = """\
 name = "tinytune"
@@ -91,13 +94,12 @@ def test_study_resumes_and_retries_a_killed_trial(tmp_path: Path) -> None:
     target = tmp_path / "target.toml"
     target.write_text(TOURNAMENT, encoding="utf-8")
     results = tmp_path / "res"
-    first = run_tune(path, "WIN4", trials=2, workers=1, results_dir=results,
-                     show_progress=False)
+    first = run_tune(path, "WIN4", trials=2, workers=1, results_dir=results)
     assert first["counts"]["COMPLETE"] + first["counts"]["PRUNED"] == 2
     journal = results / "tinytune" / "optuna" / "WIN4.journal"
     assert journal.is_file()
     with pytest.raises(UserInputError, match="add --resume"):
-        run_tune(path, "WIN4", trials=3, workers=1, results_dir=results, show_progress=False)
+        run_tune(path, "WIN4", trials=3, workers=1, results_dir=results)
 
     # A trial left RUNNING by a process that died (as after kill -9 of a whole run).
     storage = JournalStorage(JournalFileBackend(str(journal)))
@@ -106,7 +108,7 @@ def test_study_resumes_and_retries_a_killed_trial(tmp_path: Path) -> None:
     suggest(orphan, load_tune_spec(path)[0].search)
 
     second = run_tune(path, "WIN4", trials=4, workers=1, resume=True, results_dir=results,
-                      write_best=target, show_progress=False)
+                      write_best=target)
     assert second["counts"]["COMPLETE"] + second["counts"]["PRUNED"] == 4
     study = optuna.load_study(study_name="tinytune-WIN4", storage=storage)
     trials = study.get_trials()
@@ -130,10 +132,34 @@ def test_rdb_storage_url_runs_with_heartbeats(tmp_path: Path) -> None:
     path.write_text(TUNE, encoding="utf-8")
     url = f"sqlite:///{tmp_path / 'studies.db'}"
     result = run_tune(path, "MS2", trials=1, workers=1, storage=url,
-                      results_dir=tmp_path / "res", show_progress=False)
+                      results_dir=tmp_path / "res")
     assert result["storage"] == url
     assert result["counts"]["COMPLETE"] + result["counts"]["PRUNED"] == 1
     storage = optuna.storages.RDBStorage(url)
     study = optuna.load_study(study_name="tinytune-MS2", storage=storage)
     assert len(study.get_trials()) == 1
     assert not (tmp_path / "res" / "tinytune" / "optuna").exists()  # no journal file
+
+
+def test_two_workers_draw_different_parameters(tmp_path: Path) -> None:
+    """Bug 14: every worker's sampler started from [sampler] seed, so with two workers trials 0
+    and 1 had identical parameters. Each worker now has its own stream derived from the seed."""
+    path = tmp_path / "tune.toml"
+    path.write_text(TUNE.replace("seed = 3", "seed = 0"), encoding="utf-8")
+    result = run_tune(path, "WIN1", trials=2, workers=2, results_dir=tmp_path / "res")
+    # a worker done first may start a third trial before the other one finishes (Optuna counts
+    # finished trials only), so look at all of them
+    lrs = [t["params"]["actor_lr"] for t in result["trials"]]
+    assert len(lrs) >= 2 and len(set(lrs)) == len(lrs), result["trials"]
+
+
+def test_search_values_are_built_into_run_specs_before_the_study(tmp_path: Path) -> None:
+    """A search corner no run spec accepts fails in the parent, naming the line, and no study
+    is created."""
+    path = tmp_path / "tune.toml"
+    path.write_text(TUNE.replace("batch_size = { choices = [16] }",
+                                 "batch_size = { choices = [16, 0] }"), encoding="utf-8")
+    with pytest.raises(UserInputError, match=r"tune.toml:15: search.batch_size: 0 is not a valid "
+                       r"batch_size for WIN4"):
+        run_tune(path, "WIN4", trials=1, workers=1, results_dir=tmp_path / "res")
+    assert not (tmp_path / "res").exists()

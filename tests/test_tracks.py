@@ -10,10 +10,17 @@ import numpy as np
 import pytest
 
 from formula_tourney.errors import UserInputError
-from formula_tourney.sim.catalog import load_track
-from formula_tourney.sim.generate import generate_spec, generate_track
+from formula_tourney.sim.catalog import check_track_name, load_track
+from formula_tourney.sim.generate import MAX_SEED, generate_spec, generate_track
 from formula_tourney.sim.plot import plot_tracks
-from formula_tourney.sim.segments import build_track, find_overlap, parse_spec, spec_to_toml
+from formula_tourney.sim.segments import (
+    SegmentSpec,
+    TrackSpec,
+    build_track,
+    find_overlap,
+    parse_spec,
+    spec_to_toml,
+)
 
 
 @pytest.fixture(autouse=True)
@@ -170,3 +177,83 @@ def test_plot_writes_png_and_refuses_other_types(tmp_path):
     with pytest.raises(UserInputError, match="maps.jpg"):
         plot_tracks(load_track("oval"), tmp_path / "maps.jpg")
     assert not (tmp_path / "maps.jpg").exists()
+
+
+def test_segment_tracks_over_100_km_are_refused_before_sampling():
+    huge_arc = ('width_m = 10\n[[segment]]\ntype = "straight"\nlength_m = 100\n'
+                '[[segment]]\ntype = "arc"\nradius_m = 900000\nangle_deg = 360\n')
+    with pytest.raises(UserInputError, match=r"big.toml, line 6: segment 2: 5.655e\+06 m long; "
+                                             r"a whole track may be at most 100 km"):
+        parse_spec(huge_arc, "big.toml")
+    many = "width_m = 10\n" + 11 * '[[segment]]\ntype = "straight"\nlength_m = 10000\n'
+    with pytest.raises(UserInputError, match=r"many.toml, line 33: segment 11: the track is "
+                                             r"110.0 km long"):
+        parse_spec(many, "many.toml")
+    # Specs that never were TOML (generator, TORCS, code) meet the same limit in build_track.
+    spec = TrackSpec("big", 5.0, 5.0, [SegmentSpec("straight", length_m=2e5, name="long one")])
+    with pytest.raises(UserInputError, match=r"code: segment 1 \('long one'\): 2e\+05 m long"):
+        build_track(spec, "code")
+
+
+STADIUM_TOML = ('width_m = 12\n[[segment]]\ntype = "straight"\nlength_m = 200\n'
+                '[[segment]]\ntype = "arc"\nradius_m = 60\nangle_deg = 180\n'
+                '[[segment]]\ntype = "straight"\nlength_m = 200\n'
+                '[[segment]]\ntype = "arc"\nradius_m = 60\nangle_deg = 180\n')
+
+
+@pytest.fixture()
+def track_files(tmp_path, monkeypatch):
+    """A user track ``mine``, a spec folder with ``sub/local.toml`` and a stray ``.json``."""
+    users = tmp_path / "data" / "tracks"
+    users.mkdir(parents=True)
+    (users / "mine.toml").write_text(STADIUM_TOML)
+    base = tmp_path / "spec"
+    (base / "sub").mkdir(parents=True)
+    (base / "sub" / "local.toml").write_text(STADIUM_TOML)
+    (base / "sub" / "notes.json").write_text("{}")
+    monkeypatch.chdir(tmp_path)
+    return base
+
+
+def test_check_track_name_returns_the_canonical_reference(track_files):
+    base = track_files
+    assert check_track_name("oval") == "oval"
+    assert check_track_name("mine") == "mine"
+    assert check_track_name("gen-5") == "gen-5"
+    assert check_track_name("gen-005") == "gen-5"  # one name per generated track
+    assert check_track_name(f"gen-{MAX_SEED}") == f"gen-{MAX_SEED}"  # not generated here
+    local = str((base / "sub" / "local.toml").resolve())
+    assert check_track_name("sub/local.toml", base) == local
+    assert check_track_name(local) == local
+    assert check_track_name("spec/sub/local.toml") == local  # no base_dir: the current folder
+    assert check_track_name(base / "sub" / "local.toml") == local
+
+
+@pytest.mark.parametrize(
+    ("ref", "match"),
+    [
+        ("gen-99999999999", r"track 'gen-99999999999': seed 99999999999 is out of range; "
+                            r"gen-<seed> takes a seed in 0..999999999"),
+        (f"gen-{MAX_SEED + 1}", "out of range"),
+        ("nosuch", r"unknown track 'nosuch'; known tracks: oval, technical, flowing, mine; or "
+                   r"gen-<seed>"),
+        ("gen-", "unknown track 'gen-'"),
+        ("mine\n", "unknown track 'mine\\\\n'"),
+        ("sub/missing.toml", r"sub/missing.toml: track file not found"),
+        ("missing.xml", r"missing.xml: track file not found"),
+        ("sub/notes.json", r"sub/notes.json: a track file must end in .toml or .xml"),
+        (3, "expected a track name or a .toml/.xml path, got int"),
+    ],
+)
+def test_check_track_name_and_load_track_refuse_the_same_references(track_files, ref, match):
+    with pytest.raises(UserInputError, match=match):
+        check_track_name(ref, track_files)
+    with pytest.raises(UserInputError, match=match):
+        load_track(ref, track_files)
+
+
+@pytest.mark.parametrize("ref", ["oval", "mine", "gen-2", "gen-02", "sub/local.toml"])
+def test_what_check_track_name_accepts_load_track_loads(track_files, ref):
+    canonical = check_track_name(ref, track_files)
+    assert load_track(canonical).length_m == load_track(ref, track_files).length_m
+    assert check_track_name(canonical) == canonical  # canonical is a fixed point

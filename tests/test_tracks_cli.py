@@ -151,3 +151,24 @@ def test_bad_arguments_exit_2(capsys, data_dir, args, match):
     code, out, err = run(capsys, *args)
     assert code == 2 and match in err and out == ""
     assert not (data_dir / "tracks").exists()
+
+
+@pytest.mark.parametrize("name", ["trk\n", "trk\t1", "t\x00k"])
+def test_import_refuses_a_name_with_control_characters(capsys, tmp_path, data_dir, name):
+    """``--name $'trk\\n'`` used to pass check_name (``$`` matches before a final newline)."""
+    xml = tmp_path / "e-stadium.xml"
+    xml.write_text(torcs_xml(stadium_segments()))
+    code, out, err = run(capsys, "tracks", "import", str(xml), "--name", name, "--json")
+    assert code == 2 and out == "" and "invalid track name" in err
+    assert not (data_dir / "tracks").exists()
+
+
+def test_generated_names_are_reserved_and_seeds_bounded(capsys, data_dir):
+    # gen-8 would be shadowed by the generated gen-8, so seed 7 cannot be saved under it.
+    code, out, err = run(capsys, "tracks", "generate", "--seed", "7", "--save", "--name", "gen-8")
+    assert code == 2 and "'gen-8' is reserved for generated tracks" in err
+    assert not (data_dir / "tracks").exists()
+    code, out, err = run(capsys, "tracks", "show", "gen-99999999999", "--json")
+    assert code == 2 and out == ""
+    assert err == ("error: track 'gen-99999999999': seed 99999999999 is out of range; "
+                   "gen-<seed> takes a seed in 0..999999999\n")

@@ -10,11 +10,15 @@ import pandas as pd
 import pytest
 import torch
 
+from formula_tourney.agents.variants import get_variant
 from formula_tourney.errors import UserInputError
+from formula_tourney.results.layout import JOB_TABLES, SCHEMA_VERSION
 from formula_tourney.sim.track import Track
+from formula_tourney.training import envs as run_envs
 from formula_tourney.training import loop
-from formula_tourney.training.config import TrainConfig
+from formula_tourney.training import spec as run_spec
 from formula_tourney.training.evaluate import _lap_trace, start_positions
+from formula_tourney.training.spec import RunSpec, build_run_spec
 
 SMALL = {
     "hidden": [32, 32], "batch_size": 32, "learning_starts": 40, "buffer_size": 2000,
@@ -30,23 +34,29 @@ def _ring(name: str) -> Track:
 @pytest.fixture
 def ring_tracks(monkeypatch: pytest.MonkeyPatch) -> None:
     """Small ring tracks under any name, so these tests do not depend on the catalog."""
-    monkeypatch.setattr(loop, "load_tracks", lambda names: {n: _ring(n) for n in names})
+    monkeypatch.setattr(run_envs, "load_track", _ring)
+    monkeypatch.setattr(run_spec, "check_track_name", lambda name, base_dir=None: name)
 
 
-def _cfg(**kw: object) -> TrainConfig:
-    base = dict(
-        variant="WIN4", overrides=SMALL, train_tracks=["ringA", "ringB"], episodes=3,
-        max_steps=60, test_every_episodes=2, test_starts=2, test_max_steps=70,
-        save_test_checkpoints=True, device="cpu", seed=5,
+SCHEDULE = dict(
+    episodes=3, max_steps=60, test_every_episodes=2, test_starts=2, test_max_steps=70,
+    save_test_checkpoints=True,
+)  # fmt: skip
+
+
+def _cfg(variant: str = "WIN4", overrides: dict | None = None, **schedule: object) -> RunSpec:
+    return build_run_spec(
+        variant=variant, overrides=SMALL if overrides is None else overrides,
+        train_tracks=["ringA", "ringB"], schedule={**SCHEDULE, **schedule}, device="cpu", seed=5,
     )  # fmt: skip
-    return TrainConfig(**{**base, **kw})
 
 
 def test_train_writes_the_job_folder_contract(tmp_path, ring_tracks) -> None:
     calls: list[dict] = []
     summary = loop.train(_cfg(), tmp_path / "job", calls.append)
     job = tmp_path / "job"
-    assert json.loads((job / "config.json").read_text()) == _cfg().model_dump(mode="json")
+    assert json.loads((job / "config.json").read_text()) == {
+        "schema_version": SCHEMA_VERSION, "run_spec": _cfg().to_json()}
     eps = pd.read_parquet(job / "episodes.parquet")
     assert list(eps.columns) == [
         "episode", "track", "reward", "steps", "env_steps", "updates", "laps", "best_lap_s",
@@ -59,16 +69,20 @@ def test_train_writes_the_job_folder_contract(tmp_path, ring_tracks) -> None:
     assert list(eps.updates) == list(expected_updates)
     assert eps.epsilon.iloc[-1] == pytest.approx(max(0.0, 1 - (eps.env_steps.iloc[-1] - 1) / 200))
     tests = pd.read_parquet(job / "tests.parquet")
+    # distance_m is part of the contract: promotion "by_distance" reads it (issue 10, item 1)
     assert list(tests.columns) == [
         "episode", "env_steps", "track", "start_s_m", "finished", "best_lap_s", "laps", "damage",
-        "reward", "steps", "termination", "checkpoint",
+        "reward", "steps", "termination", "checkpoint", "distance_m",
     ]  # fmt: skip
+    assert list(tests.columns) == JOB_TABLES["tests"]
+    assert (tests.distance_m > 0).all()
     # tests after episodes 2 and 3, on both train tracks, from 2 starts each
     assert len(tests) == 2 * 2 * 2 and sorted(set(tests.episode)) == [2, 3]
     assert set(tests.checkpoint) == {"checkpoints/ep-2.pt", "checkpoints/ep-3.pt"}
     for rel in set(tests.checkpoint) | {"checkpoints/last.pt"}:
         state = torch.load(job / rel, weights_only=True)
         assert state["config"]["window"] == 4
+        assert RunSpec.from_json(state["extra"]["run_spec"], rel) == _cfg()
     laps = pd.read_parquet(job / "laps.parquet")
     assert list(laps.columns) == [
         "episode", "track", "start_s_m", "lap_index", "lap_time_s", "lap_damage", "clean",
@@ -113,14 +127,54 @@ def test_nan_loss_raises_diverged_without_summary(tmp_path, ring_tracks, monkeyp
     assert not (tmp_path / "job" / "summary.json").exists()
 
 
-def test_bad_input_fails_before_writing(tmp_path, ring_tracks) -> None:
+def test_bad_input_fails_when_the_spec_is_built(ring_tracks) -> None:
     with pytest.raises(UserInputError, match="unknown variant"):
-        loop.train(_cfg(variant="WIN3"), tmp_path / "job")
+        _cfg(variant="WIN3")
     with pytest.raises(UserInputError, match="batch_size"):
-        loop.train(_cfg(overrides={**SMALL, "batch_size": "many"}), tmp_path / "job")
-    assert not (tmp_path / "job").exists()
+        _cfg(overrides={**SMALL, "batch_size": "many"})
     with pytest.raises(UserInputError, match="reference"):
-        TrainConfig.parse({"reference": "racing"}, "train options")
+        build_run_spec(variant="WIN1", train_tracks=["ringA"], reference="racing")
+    with pytest.raises(UserInputError, match="unknown schedule key"):
+        _cfg(episods=3)
+    with pytest.raises(UserInputError, match="physics_hz"):
+        build_run_spec(variant="WIN1", train_tracks=["ringA"], env_overrides={"physics_hz": 5})
+
+
+@pytest.mark.parametrize("key", ["lac", "max_steps", "random_start", "track", "reference_line"])
+def test_env_overrides_cannot_fight_the_run_settings(ring_tracks, key: str) -> None:
+    """Issue 10, item 2: env overrides used to win over the setup's lac and test_max_steps."""
+    with pytest.raises(UserInputError, match=f"'{key}' is set by"):
+        build_run_spec(variant="WIN1", train_tracks=["ringA"], env_overrides={key: True})
+
+
+def test_run_spec_owns_every_setting_and_round_trips(ring_tracks) -> None:
+    spec = build_run_spec(
+        variant="PER40k", overrides={"batch_size": 64}, train_tracks=["ringA"], lac=True,
+        reference="centre", env_overrides={"slow_patience_steps": 40, "car": {"mu": 1.4}},
+        schedule={"test_max_steps": 900}, seed=3,
+    )  # fmt: skip
+    assert spec.agent == get_variant("PER40k", {"batch_size": 64})
+    assert spec.test_tracks == ("ringA",) and spec.key_track == "ringA"
+    assert spec.env.slow_patience_steps == 40 and spec.env.car_params().mu == 1.4
+    again = RunSpec.from_json(json.loads(json.dumps(spec.to_json())), "round trip")
+    assert again == spec and again.digest() == spec.digest()
+    with pytest.raises(UserInputError, match="not a run specification"):
+        RunSpec.from_json({**spec.to_json(), "extra": 1}, "config.json")
+
+
+def test_test_envs_use_the_run_settings(ring_tracks) -> None:
+    spec = build_run_spec(
+        variant="WIN1", train_tracks=["ringA"], lac=True, env_overrides={"physics_hz": 200},
+        schedule={"max_steps": 77, "test_max_steps": 123, "random_start": True},
+    )  # fmt: skip
+    envs = run_envs.RunEnvs(spec)
+    train_cfg, test_cfg = envs.config("ringA", test=False), envs.config("ringA", test=True)
+    assert (train_cfg.max_steps, train_cfg.random_start) == (77, True)
+    assert (test_cfg.max_steps, test_cfg.random_start) == (123, False)
+    assert train_cfg.lac and test_cfg.lac and test_cfg.physics_hz == 200.0
+    env = envs.make("ringA", test=True)
+    assert env.unwrapped.config["max_steps"] == 123 and env.unwrapped.config["lac"] is True
+    env.close()
 
 
 def test_best_lap_trace_is_cut_from_the_lap_window() -> None:
@@ -167,3 +221,41 @@ def test_cli_train_and_eval_json(tmp_path, ring_tracks, capsys) -> None:
     with pytest.raises(SystemExit) as exc:
         main(["train", "--variant", "WIN1", "--out", str(out), "--episodes", "1"])
     assert exc.value.code == 2  # finished job folder is not overwritten
+
+
+def test_best_lap_trace_and_checkpoint_follow_the_metrics_clean_lap(
+    tmp_path, ring_tracks, monkeypatch
+) -> None:
+    """One definition of a clean lap: a model (all starts of one test) with any damage has no
+    clean lap, even when one of its drives lapped cleanly; the trace, best.pt and the summary
+    follow results.metrics, so a figure never shows another lap than the table."""
+    from formula_tourney.results.metrics import run_metrics
+    from formula_tourney.training.evaluate import DriveResult
+
+    # test round 1 (episode 2): 30.0 s clean from start 0 but start 1 crashed -> no clean lap;
+    # round 2 (episode 3): 31.0 s and 31.5 s, both undamaged -> 31.0 s is the run's best
+    script = {(2, 0): ([30.0], [0.0], 0.0), (2, 1): ([33.0], [4.0], 4.0),
+              (3, 0): ([31.5], [0.0], 0.0), (3, 1): ([31.0], [0.0], 0.0)}  # fmt: skip
+    calls = {"n": 0}
+
+    def scripted(agent, env, name, s0, seed, record_trace=True):  # type: ignore[no-untyped-def]
+        episode = 2 if calls["n"] < 2 else 3
+        start = calls["n"] % 2
+        calls["n"] += 1
+        laps, lap_damage, damage = script[(episode, start)]
+        trace = pd.DataFrame({"time_s": [laps[0]], "s_m": [float(start)]})
+        return DriveResult(name, s0, laps, lap_damage, damage, 0.0, 10, "max_steps", 100.0,
+                           trace if lap_damage[0] == 0 else None)
+
+    monkeypatch.setattr(loop, "run_test_episode", scripted)
+    spec = build_run_spec(
+        variant="WIN1", overrides=SMALL, train_tracks=["ringA"], device="cpu",
+        schedule={**SCHEDULE, "test_starts": 2, "save_test_checkpoints": False},
+    )  # fmt: skip
+    summary = loop.train(spec, tmp_path / "job")
+    tests = pd.read_parquet(tmp_path / "job" / "tests.parquet")
+    assert run_metrics(tests, "ringA")["best_lap_s"] == summary["best_lap_s"] == 31.0
+    trace = pd.read_parquet(tmp_path / "job" / "traces" / "ringA.parquet")
+    assert trace.time_s.tolist() == [31.0] and trace.s_m.tolist() == [1.0]
+    best = torch.load(tmp_path / "job" / "checkpoints" / "best.pt", weights_only=True)
+    assert best["extra"]["best_lap_s"] == 31.0 and best["extra"]["episode"] == 3

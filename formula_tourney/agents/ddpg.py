@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import io
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -29,6 +30,8 @@ from formula_tourney.agents.mlp_update import MLPUpdate
 from formula_tourney.agents.networks import Actor, GreedyAct, LSTMCritic, MLPCritic
 from formula_tourney.agents.replay import ReplayBatch
 from formula_tourney.agents.variants import AgentConfig
+from formula_tourney.errors import UserInputError
+from formula_tourney.safeio import atomic_write_bytes
 
 
 class UpdateInfo(NamedTuple):
@@ -150,8 +153,6 @@ def resolve_device(device: str) -> torch.device:
     if device == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if device == "cuda" and not torch.cuda.is_available():
-        from formula_tourney.errors import UserInputError
-
         raise UserInputError("device 'cuda' requested but torch sees no CUDA device; use auto")
     return torch.device(device)
 
@@ -367,10 +368,6 @@ def save_checkpoint(
     agent: DDPGAgent, path: str | Path, extra: dict[str, Any] | None = None
 ) -> Path:
     """Write ``agent`` (and plain ``extra`` metadata) atomically to ``path``."""
-    import io
-
-    from formula_tourney.safeio import atomic_write_bytes
-
     state = agent.state_dict()
     if extra:
         state["extra"] = extra
@@ -379,10 +376,18 @@ def save_checkpoint(
     return atomic_write_bytes(path, buf.getvalue())
 
 
-def load_checkpoint(path: str | Path, device: str = "cpu") -> tuple[DDPGAgent, dict[str, Any]]:
-    """Rebuild the agent from a checkpoint with ``weights_only=True`` (no pickled code runs)."""
-    from formula_tourney.errors import UserInputError
+CHECKPOINT_KEYS = (
+    "format", "config", "obs_dim", "action_dim", "actor", "critic", "actor_target",
+    "critic_target", "actor_opt", "critic_opt",
+)  # fmt: skip
 
+
+def load_checkpoint(path: str | Path, device: str = "cpu") -> tuple[DDPGAgent, dict[str, Any]]:
+    """Rebuild the agent from a checkpoint with ``weights_only=True`` (no pickled code runs).
+
+    Every way a file can be wrong (not a checkpoint, a missing key, a config this version does
+    not accept, weights of another variant's shapes) is one UserInputError naming the file.
+    """
     path = Path(path)
     if not path.is_file():
         raise UserInputError(f"checkpoint {path} does not exist")
@@ -393,7 +398,23 @@ def load_checkpoint(path: str | Path, device: str = "cpu") -> tuple[DDPGAgent, d
         raise UserInputError(f"checkpoint {path} cannot be read: {err}") from None
     if not isinstance(state, dict) or state.get("format") != 1:
         raise UserInputError(f"checkpoint {path} is not a formula-tourney agent checkpoint")
-    cfg = AgentConfig.model_validate(state["config"])
-    agent = DDPGAgent(cfg, state["obs_dim"], state["action_dim"], device=str(dev))
-    agent.load_state_dict(state)
+    missing = [k for k in CHECKPOINT_KEYS if k not in state]
+    if missing:
+        raise UserInputError(f"checkpoint {path} is incomplete: no {', '.join(missing)}")
+    try:
+        cfg = AgentConfig.model_validate(state["config"])
+        obs_dim, action_dim = int(state["obs_dim"]), int(state["action_dim"])
+    except (ValueError, TypeError) as err:  # pydantic's ValidationError is a ValueError
+        first = str(err).splitlines()[0]
+        raise UserInputError(f"checkpoint {path} has a bad agent config: {first}") from None
+    if obs_dim < 1 or action_dim < 1:
+        raise UserInputError(f"checkpoint {path} has bad sizes {obs_dim} x {action_dim}")
+    agent = DDPGAgent(cfg, obs_dim, action_dim, device=str(dev))
+    try:
+        agent.load_state_dict(state)
+    except (RuntimeError, KeyError, ValueError, TypeError) as err:
+        first = str(err).strip().splitlines()[0]
+        raise UserInputError(
+            f"checkpoint {path}: its weights do not fit its config {cfg.name} ({first})"
+        ) from None
     return agent, dict(state.get("extra", {}))

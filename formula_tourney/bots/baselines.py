@@ -13,20 +13,16 @@ import math
 import numpy as np
 
 from formula_tourney.bots.follower import FollowerConfig, drive
-from formula_tourney.lines.registry import check_kind, reference_offsets
-from formula_tourney.lines.speed_profile import reference_limit_s, speed_profile
+from formula_tourney.bots.reference import reference_offsets
+from formula_tourney.lines.limit import reference_limit_s
+from formula_tourney.lines.registry import check_kind
+from formula_tourney.lines.speed_profile import speed_profile
+from formula_tourney.results.metrics import gap_pct
 from formula_tourney.sim.car_params import CarParams
 from formula_tourney.sim.reference import ReferenceLine
 from formula_tourney.sim.track import Track
 
 BUILT_IN_TRACKS: tuple[str, ...] = ("oval", "technical", "flowing")
-
-
-def gap_pct(lap_s: float, limit_s: float) -> float:
-    """How much slower than the reference limit, in percent (NaN when either is missing)."""
-    if not (math.isfinite(lap_s) and math.isfinite(limit_s) and limit_s > 0):
-        return float("nan")
-    return 100.0 * (lap_s / limit_s - 1.0)
 
 
 def line_report(track: Track, kind: str, car: CarParams | None = None) -> dict:

@@ -33,7 +33,9 @@ from formula_tourney.lines.speed_profile import (
     cornering_drag_n,
     speed_profile,
 )
+from formula_tourney.sim import kernels as K
 from formula_tourney.sim.car_params import GRAVITY_MPS2, CarParams
+from formula_tourney.sim.env import FormulaRacingEnv
 from formula_tourney.sim.reference import ReferenceLine
 from formula_tourney.sim.track import Track
 
@@ -293,8 +295,6 @@ def _fiala_slip(force_n: float, f_max_n: float, stiffness: float, max_share: flo
 
 def _car_state(env) -> CarState:
     """The true state of car 0 from the env (the bot is a bot: it may read the simulator)."""
-    from formula_tourney.sim import kernels as K
-
     base = env.unwrapped
     batch = getattr(base, "_b", None)
     state = batch.state if batch is not None else base.state
@@ -322,8 +322,6 @@ def drive(
     ``termination``, ``steps`` and ``trace`` (per step: time_s, distance_m, s_m, lateral_m,
     x_m, y_m, speed_kmh, steer, throttle, brake, lap = start-line crossings so far).
     """
-    from formula_tourney.sim.env import FormulaRacingEnv
-
     if laps < 1:
         raise UserInputError(f"laps must be >= 1, got {laps}")
     car = car or CarParams()

@@ -82,25 +82,22 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
     ) -> None:
         """Train one DDPG variant and write its job folder (docs/CONTRACTS.md layout)."""
-        from formula_tourney.training.config import TrainConfig
-
-        cfg = TrainConfig.parse(
-            {
-                "variant": variant, "overrides": _parse_sets(set_, "--set"),
-                "train_tracks": track, "reference": reference, "lac": lac,
-                "episodes": episodes, "seed": seed, "max_steps": max_steps,
-                "test_every_episodes": test_every, "test_tracks": test_track,
-                "test_starts": test_starts, "test_max_steps": test_max_steps, "device": device,
-                "threads": threads, "env_overrides": _parse_sets(env_set, "--env-set"),
-            },
-            "train options",
-        )  # fmt: skip
-        from formula_tourney.agents.variants import get_variant
-
-        get_variant(cfg.variant, cfg.overrides)  # bad variant/overrides fail before any write
-        if (out / "summary.json").exists():
-            raise UserInputError(f"{out} holds a finished run (summary.json); choose another --out")
+        # heavy (torch, numba) imports stay inside the command so that --help is instant
+        from formula_tourney.results.folder import JobFolder
         from formula_tourney.training.loop import train
+        from formula_tourney.training.spec import build_run_spec
+
+        spec = build_run_spec(
+            variant=variant, overrides=_parse_sets(set_, "--set"), train_tracks=track,
+            test_tracks=test_track, reference=reference, lac=lac, seed=seed, device=device,
+            threads=threads, env_overrides=_parse_sets(env_set, "--env-set"),
+            schedule={"episodes": episodes, "max_steps": max_steps,
+                      "test_every_episodes": test_every, "test_starts": test_starts,
+                      "test_max_steps": test_max_steps},
+            source="train options",
+        )  # fmt: skip
+        if JobFolder(out).is_finished():
+            raise UserInputError(f"{out} holds a finished run (summary.json); choose another --out")
 
         def progress(p: dict[str, Any]) -> None:
             best = p["best_lap_s"]
@@ -110,7 +107,7 @@ def register(app: typer.Typer) -> None:
                 f"{'-' if best is None else f'{best:.2f} s'}  {p['seconds']:.0f} s"
             )
 
-        summary = train(cfg, out, progress)
+        summary = train(spec, out, progress)
         summary["out"] = str(out)
         emit(summary, as_json, _render_result(summary))
 

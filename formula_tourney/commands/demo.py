@@ -11,6 +11,8 @@ from pathlib import Path
 import typer
 
 from formula_tourney.commands.output import emit, message, stdout_console
+from formula_tourney.commands.tourney import failures_exit, interrupted
+from formula_tourney.commands.tourney_view import ProgressView
 from formula_tourney.errors import UserInputError
 
 
@@ -29,14 +31,21 @@ def register(app: typer.Typer) -> None:
         results: Path = typer.Option(Path("results"), help="Results folder."),
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
     ) -> None:
-        """Run the quick tournament (ten variants, oval then technical) and print Table 1."""
+        """Run the quick tournament (ten variants, oval then technical) and print Table 1.
+
+        Exit codes as ``run``: 0 every job done, 2 bad input, 3 some jobs failed, 130
+        interrupted."""
         from formula_tourney.report.build import build_report
         from formula_tourney.tourney.api import run_tournament
 
         path = quick_tournament_path()
         message(f"demo: running {path} into {results}/ (resumes if already run)")
-        outcome = run_tournament(path, workers=workers, results_dir=results,
-                                 show_progress=not as_json)
+        try:
+            outcome = run_tournament(path, workers=workers, results_dir=results,
+                                     progress=None if as_json else ProgressView())
+        except KeyboardInterrupt:
+            raise interrupted() from None
         report = build_report(outcome.get("tournament", "quick"), results)
         emit({"run": outcome, "report": report.to_json()}, as_json,
              lambda _console: report.render_tables(stdout_console, ("table1",)))
+        raise typer.Exit(failures_exit(outcome))

@@ -1,5 +1,9 @@
 """CLI commands for reference lines and the baseline bots: ``lines show``, ``lines table``,
-``bot``. Each parses arguments and calls one function of ``bots.baselines``."""
+``bot``. Each parses arguments and calls one function of ``bots.baselines``.
+
+``bots.baselines`` pulls numba, quadprog and the simulator (about 0.6 s): it is imported inside
+the commands, so that the rest of the CLI does not pay for it (docs/CONTRACTS.md).
+"""
 
 from __future__ import annotations
 
@@ -10,14 +14,10 @@ import typer
 
 from formula_tourney.commands.output import emit, message
 from formula_tourney.errors import UserInputError
+from formula_tourney.safeio import atomic_write
+from formula_tourney.sim.catalog import load_track
 
 LINE_HELP = "Reference line: centre | mincurv | recorded | genetic."
-
-
-def _load(track_name: str):
-    from formula_tourney.sim.catalog import load_track
-
-    return load_track(track_name)
 
 
 def _fmt(x: float, digits: int = 2) -> str:
@@ -30,8 +30,6 @@ def _plot_line(report: dict, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from formula_tourney.safeio import atomic_write
 
     arrays = report["_arrays"]
     track = report["_track"]
@@ -68,13 +66,12 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
     ) -> None:
         """A line's length, QSS lap time, speeds and gap to the track's reference limit."""
-        from formula_tourney.bots.baselines import line_report, public
-        from formula_tourney.lines.registry import check_kind
+        from formula_tourney.bots.baselines import check_kind, line_report, public
 
         check_kind(line)
         if plot is not None and plot.suffix.lower() not in (".png", ".svg", ".pdf"):
             raise UserInputError(f"--plot {plot}: use a .png, .svg or .pdf file name")
-        trk = _load(track)
+        trk = load_track(track)
         report = line_report(trk, line)
         if plot is not None:
             _plot_line({**report, "_track": trk}, plot)
@@ -111,7 +108,7 @@ def register(app: typer.Typer) -> None:
         names = [t.strip() for t in tracks.split(",") if t.strip()]
         if not names:
             raise UserInputError("--tracks: give at least one track name")
-        loaded = [_load(n) for n in names]
+        loaded = [load_track(n) for n in names]
         rows = reference_table(loaded, laps)
 
         def render(console) -> None:
@@ -139,11 +136,10 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
     ) -> None:
         """Drive the follower bot (our Tita) on a line: lap times, damage, gap to the limit."""
-        from formula_tourney.bots.baselines import bot_report, public
-        from formula_tourney.lines.registry import check_kind
+        from formula_tourney.bots.baselines import bot_report, check_kind, public
 
         check_kind(line)
-        trk = _load(track)
+        trk = load_track(track)
         data = public(bot_report(trk, line, laps))
 
         def render(console) -> None:

@@ -1,21 +1,56 @@
-"""CLI commands for tournaments: ``run`` (plan, train, promote, resume) and ``tune`` (Optuna)."""
+"""CLI commands for tournaments: ``run`` (plan, train, promote, resume) and ``tune`` (Optuna).
+
+Exit codes of ``run`` (and ``demo``), documented in docs/tourney.md and ``run --help``:
+0 every job done; 2 bad input or unreadable results (nothing was started); 3 the run ended but
+some jobs failed; 130 interrupted (Ctrl-C). 2 comes from ``cli.main`` (UserInputError).
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
 
 from formula_tourney.commands.output import emit, message
+from formula_tourney.commands.tourney_view import ProgressView, render_results, render_tune
+
+EXIT_OK = 0
+EXIT_BAD_INPUT = 2
+EXIT_JOBS_FAILED = 3
+EXIT_INTERRUPTED = 130
+
+RUN_EXIT_HELP = (
+    "Exit codes: 0 every job done; 2 bad input or unreadable results, nothing started; "
+    "3 some jobs failed (run again with --retry-failed); 130 interrupted (run again to resume)."
+)
+
+
+def interrupted() -> typer.Exit:
+    """The message and exit of a Ctrl-C: finished jobs are recorded, the rest resumes."""
+    message("interrupted: finished jobs are kept; run the same command to resume")
+    return typer.Exit(EXIT_INTERRUPTED)
+
+
+def failures_exit(result: dict[str, Any]) -> int:
+    """Exit code of a finished run, with the one message that says how to re-run failures."""
+    failures = result.get("failures") or []
+    if not failures:
+        return EXIT_OK
+    message(f"{len(failures)} job(s) failed; run again with --retry-failed to re-run them "
+            "(the parts they closed are re-opened and promotion is computed again)")
+    return EXIT_JOBS_FAILED
 
 
 def register(app: typer.Typer) -> None:
     """Add this area's commands to the main app."""
 
-    @app.command()
+    @app.command(epilog=RUN_EXIT_HELP)
     def run(
         file: Path = typer.Argument(..., help="Tournament file, e.g. tournaments/quick.toml."),
-        dry_run: bool = typer.Option(False, "--dry-run", help="Print the plan and exit."),
+        dry_run: bool = typer.Option(
+            False, "--dry-run", help="Validate every job's settings, print the plan and exit."
+        ),
         workers: int | None = typer.Option(
             None, "--workers", help="Parallel jobs (default: the CPU cores this process may use)."
         ),
@@ -23,26 +58,41 @@ def register(app: typer.Typer) -> None:
         address: str | None = typer.Option(
             None, "--address", help="Ray cluster address (default: a local Ray instance)."
         ),
-        retries: int = typer.Option(0, "--retries", help="Extra attempts for a failing job."),
+        retries: int = typer.Option(
+            0, "--retries", help="Extra attempts for a failing job within this run."
+        ),
+        retry_failed: bool = typer.Option(
+            False, "--retry-failed",
+            help="Re-run the jobs that failed in earlier runs, re-opening the parts they closed "
+            "and computing their promotion again.",
+        ),
+        rebuild_index: bool = typer.Option(
+            False, "--rebuild-index",
+            help="Move index.sqlite aside (index.sqlite.corrupt when unreadable) and rebuild it "
+            "from the job folders.",
+        ),
         results: Path = typer.Option(
             Path("results"), "--results", help="Results folder; the tournament goes in NAME/."
         ),
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
     ) -> None:
         """Run a tournament (again: resume it). Jobs are entrant x seed x part."""
-        from formula_tourney.tourney.api import render_results, run_tournament
+        from formula_tourney.tourney.api import run_tournament  # agents, sim: not for --help
 
         try:
             result = run_tournament(
                 file, workers=workers, executor=executor, address=address, retries=retries,
-                results_dir=results, dry_run=dry_run, show_progress=not dry_run,
+                results_dir=results, dry_run=dry_run, retry_failed=retry_failed,
+                rebuild_index=rebuild_index, progress=None if dry_run else ProgressView(),
             )
         except KeyboardInterrupt:
-            message("interrupted: finished jobs are kept; run the same command to resume")
-            raise typer.Exit(130) from None
+            raise interrupted() from None
+        if result.get("index_moved_to"):
+            message(f"moved the old index to {result['index_moved_to']}; rebuilt it from the "
+                    "job folders")
         emit(result, as_json, lambda console: render_results(console, result))
-        if not dry_run and result["failures"]:
-            message(f"{len(result['failures'])} job(s) failed; run again to retry them")
+        if not dry_run:
+            raise typer.Exit(failures_exit(result))
 
     @app.command()
     def tune(
@@ -65,11 +115,14 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
     ) -> None:
         """Pre-select a variant's hyperparameters with Optuna (TPE, pruning on test laps)."""
-        from formula_tourney.tourney.tune import render_tune, run_tune
+        from formula_tourney.tourney.tune import run_tune  # imports optuna: only when tuning
 
-        result = run_tune(
-            file, variant=variant, trials=trials, workers=workers, storage=storage,
-            resume=resume, write_best=write_best, results_dir=results,
-            show_progress=not as_json,
-        )
+        try:
+            result = run_tune(
+                file, variant=variant, trials=trials, workers=workers, storage=storage,
+                resume=resume, write_best=write_best, results_dir=results,
+                report=None if as_json else message,
+            )
+        except KeyboardInterrupt:
+            raise interrupted() from None
         emit(result, as_json, lambda console: render_tune(console, result))

@@ -8,10 +8,19 @@ import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import typer
 
 from formula_tourney.commands.output import emit, message
 from formula_tourney.errors import UserInputError
+from formula_tourney.sim.catalog import list_tracks, load_track, user_tracks_dir
+from formula_tourney.sim.generate import generate_spec
+from formula_tourney.sim.plot import check_plot_path, plot_tracks
+from formula_tourney.sim.track_store import (
+    import_torcs_track,
+    save_user_track,
+    user_track_target,
+)
 
 JSON_HELP = "Print one JSON document on stdout."
 PLOT_HELP = "Write a track map (.png, .svg or .pdf)."
@@ -19,8 +28,6 @@ PLOT_HELP = "Write a track map (.png, .svg or .pdf)."
 
 def track_summary(track: Any) -> dict[str, Any]:
     """What ``tracks show --json`` prints: the numbers that characterise a track."""
-    import numpy as np
-
     radius = track.min_radius_m
     return {
         "name": track.name,
@@ -36,7 +43,7 @@ def track_summary(track: Any) -> dict[str, Any]:
 
 def _render_summary(summary: dict[str, Any]):
     """Human view of a summary: headline numbers, then the segment table."""
-    from rich.table import Table
+    from rich.table import Table  # local: only the human view needs rich.table
 
     def render(console) -> None:
         radius = summary["min_radius_m"]
@@ -68,22 +75,6 @@ def _render_summary(summary: dict[str, Any]):
     return render
 
 
-def _check_save_name(name: str, force: bool, label: str) -> Path:
-    """Path for a user track named ``name``; refuses reserved names and silent overwrites."""
-    from formula_tourney.safeio import check_name
-    from formula_tourney.sim.catalog import BUILTIN_TRACKS, user_tracks_dir
-
-    check_name(name, "track name")
-    if name in BUILTIN_TRACKS:
-        raise UserInputError(f"{label}: {name!r} is a built-in track name; pick another --name")
-    target = user_tracks_dir() / f"{name}.toml"
-    if target.exists() and not force:
-        raise UserInputError(
-            f"{label}: user track {name!r} already exists ({target}); use --force to replace it"
-        )
-    return target
-
-
 def register(app: typer.Typer) -> None:
     """Add this area's commands to the main app."""
     tracks_app = typer.Typer(help="Tracks: list, show, import from TORCS, generate.",
@@ -95,8 +86,6 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
     ) -> None:
         """Built-in tracks and the user's tracks folder, with lengths and widths."""
-        from formula_tourney.sim.catalog import list_tracks, user_tracks_dir
-
         rows = list_tracks()
         folder = str(user_tracks_dir())
 
@@ -125,9 +114,6 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
     ) -> None:
         """Length, width, minimum radius, closure error and segments of a track."""
-        from formula_tourney.sim.catalog import load_track
-        from formula_tourney.sim.plot import check_plot_path, plot_tracks
-
         if plot is not None:
             check_plot_path(plot)
         track = load_track(name)
@@ -145,9 +131,6 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
     ) -> None:
         """Convert a TORCS track XML to TOML in the user's tracks folder."""
-        from formula_tourney.sim.catalog import load_track
-        from formula_tourney.sim.torcs import import_torcs_track
-
         if file.suffix.lower() != ".xml":
             raise UserInputError(f"{file}: expected a TORCS .xml track file")
         written = import_torcs_track(file, name, overwrite=force)
@@ -169,20 +152,16 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
     ) -> None:
         """A procedural track: closed, non-overlapping, 1.5-4 km, 8-14 m wide, radii >= 12 m."""
-        from formula_tourney.safeio import atomic_write_text
-        from formula_tourney.sim.generate import generate_spec
-        from formula_tourney.sim.plot import check_plot_path, plot_tracks
-        from formula_tourney.sim.segments import spec_to_toml
-
         if name is not None and not save:
             raise UserInputError("--name only applies with --save")
         if plot is not None:
             check_plot_path(plot)
-        target = _check_save_name(name or f"gen-{seed}", force, "--save") if save else None
+        target = (user_track_target(name or f"gen-{seed}", "--save", overwrite=force,
+                                    generated_seed=seed) if save else None)
         spec, track = generate_spec(seed, name=name)
         summary = track_summary(track)
         if target is not None:
-            summary["saved"] = str(atomic_write_text(target, spec_to_toml(spec)))
+            summary["saved"] = str(save_user_track(spec, target))
         if plot is not None:
             summary["plot"] = str(plot_tracks(track, plot))
         emit(summary, as_json, _render_summary(summary))

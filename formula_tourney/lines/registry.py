@@ -8,8 +8,9 @@ The key holds the track name, a hash of its geometry, ``car.fingerprint()``, the
 algorithm version, so a changed track, car or algorithm never reads a stale line.
 
 The recorded and genetic lines need a driver (the follower bot). ``lines`` sits below ``bots``
-(imports go downward), so the driver is an argument; when it is omitted the follower is looked
-up at call time, never at import time.
+(imports go downward), so the driver is an argument here, required for those two kinds;
+``bots.reference.reference_offsets(track, kind, car)`` is the same call with the follower passed
+in, and is what training, tournaments and the CLI use.
 """
 
 from __future__ import annotations
@@ -24,6 +25,10 @@ from pathlib import Path
 import numpy as np
 
 from formula_tourney.errors import UserInputError
+from formula_tourney.lines.centre import centre_offsets
+from formula_tourney.lines.genetic import genetic_line
+from formula_tourney.lines.mincurv import mincurv_offsets
+from formula_tourney.lines.recorded import recorded_offsets
 from formula_tourney.safeio import atomic_write_bytes
 from formula_tourney.sim.car_params import CarParams
 from formula_tourney.sim.track import Track
@@ -34,9 +39,14 @@ LINE_KINDS: tuple[str, ...] = ("centre", "mincurv", "recorded", "genetic")
 ALGORITHM_VERSION = 2
 """Bump when a line's algorithm changes: old cache entries then stop matching."""
 
+DRIVEN_KINDS: tuple[str, ...] = ("recorded", "genetic")
+"""Lines made by driving: they need a driver (``bots.follower.drive``)."""
+
 CACHE_ENV_VAR = "FORMULA_TOURNEY_CACHE_DIR"
 
 Driver = Callable[..., dict]
+"""``drive(track, offsets, laps=2, car=car) -> dict`` with ``trace``, ``best_lap_s``, ``damage``
+and ``finished``, as ``bots.follower.drive`` returns."""
 
 
 def cache_dir() -> Path:
@@ -75,16 +85,23 @@ def reference_offsets(
     track: Track,
     kind: str,
     car: CarParams | None = None,
-    *,
     driver: Driver | None = None,
+    *,
     use_cache: bool = True,
 ) -> np.ndarray:
-    """Lateral offsets (one per track sample) of the reference line ``kind`` on ``track``."""
+    """Lateral offsets (one per track sample) of the reference line ``kind`` on ``track``.
+
+    ``driver`` drives the recorded and genetic lines (pass ``bots.follower.drive``, or call
+    ``bots.reference.reference_offsets``); a cached line is returned without driving.
+    """
     check_kind(kind)
     if kind == "centre":
-        from formula_tourney.lines.centre import centre_offsets
-
         return centre_offsets(track)
+    if kind in DRIVEN_KINDS and driver is None:
+        raise TypeError(
+            f"the {kind} line is made by driving: pass driver= (bots.follower.drive), or call "
+            "formula_tourney.bots.reference.reference_offsets"
+        )
     car = car or CarParams()
     path = cache_path(track, kind, car)
     if use_cache and path.is_file():
@@ -94,7 +111,7 @@ def reference_offsets(
                 return offsets
         except (OSError, ValueError):
             pass  # a damaged entry is recomputed and overwritten below
-    offsets = _compute(track, kind, car, driver)
+    offsets = _compute(track, kind, car, driver, use_cache)
     if use_cache:
         buf = io.BytesIO()
         np.save(buf, offsets, allow_pickle=False)
@@ -102,27 +119,17 @@ def reference_offsets(
     return offsets
 
 
-def _default_driver() -> Driver:
-    from formula_tourney.bots.follower import drive
-
-    return drive
-
-
-def _compute(track: Track, kind: str, car: CarParams, driver: Driver | None) -> np.ndarray:
+def _compute(track: Track, kind: str, car: CarParams, driver: Driver | None,
+             use_cache: bool) -> np.ndarray:
     if kind == "mincurv":
-        from formula_tourney.lines.mincurv import mincurv_offsets
-
         return mincurv_offsets(track)
-    drive = driver or _default_driver()
-    mincurv_line = reference_offsets(track, "mincurv", car, driver=driver)
+    assert driver is not None  # checked by reference_offsets
+    mincurv_line = reference_offsets(track, "mincurv", car, use_cache=use_cache)
     if kind == "recorded":
-        from formula_tourney.lines.recorded import recorded_offsets
-
-        result = drive(track, mincurv_line, laps=2, car=car)
+        result = driver(track, mincurv_line, laps=2, car=car)
         return recorded_offsets(track, result)
-    from formula_tourney.lines.genetic import genetic_line
 
     def retime(trk: Track, offsets: np.ndarray) -> dict:
-        return drive(trk, offsets, laps=2, car=car)
+        return driver(trk, offsets, laps=2, car=car)
 
     return genetic_line(track, car, seed=0, seed_offsets_m=mincurv_line, driver=retime).offsets_m

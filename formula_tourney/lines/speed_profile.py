@@ -1,10 +1,10 @@
 """Quasi-steady-state (QSS) speed profile and lap time of a line for our car.
 
 Every lap-time table reads as a gap to the *reference limit*: the QSS lap on the minimum-
-curvature line (DESIGN.md, "Lines, limit and bots"). The car is the simulator's own
-``CarParams`` (grip, downforce, drag, rolling resistance, engine force over all gears, brake
-force), so the limit moves when the car does. Three steps, the textbook "forward/backward"
-method:
+curvature line (``lines.limit.reference_limit_s``; DESIGN.md, "Lines, limit and bots"). The car
+is the simulator's own ``CarParams`` (grip, downforce, drag, rolling resistance, engine force over
+all gears, brake force), so the limit moves when the car does. Three steps, the textbook
+"forward/backward" method:
 
 1. corner speed at each point: the largest speed at which the tyres can both hold the line's
    curvature and balance drag + rolling resistance (friction circle with downforce);
@@ -389,11 +389,3 @@ def brake_force_limit_n(car: CarParams, speed_mps: float, lateral_force_n: float
     if lateral_cutoff > 0.0 and grip > 0.0:
         force *= max(0.0, 1.0 - lateral_force_n / grip / lateral_cutoff)
     return float(force)
-
-
-def reference_limit_s(track: Track, car: CarParams | None = None) -> float:
-    """The track's reference limit: QSS lap time on the minimum-curvature line (cached)."""
-    from formula_tourney.lines.registry import reference_offsets
-
-    car = car or CarParams()
-    return lap_time_s(track, reference_offsets(track, "mincurv", car), car)

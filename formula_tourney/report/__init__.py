@@ -1,6 +1,8 @@
 """Reports: the paper's tables, statistics and figures from a tournament's results folder.
 
-``load`` reads the store (files only), ``tables``/``stats`` compute and format the numbers,
-``plots``/``html`` draw and assemble, ``build`` ties them together for the CLI, and ``replay``
-turns a checkpoint's lap into a GIF. Nothing here trains or imports the tournament runner.
+``load`` reads the results (files only, through ``results.index`` and ``results.folder``);
+``paper_tables`` builds Tables 1-3 and the comparisons from ``results.metrics`` into the table
+model of ``table_model``; ``render`` (terminal, Markdown, LaTeX) and ``html`` write them;
+``stats`` holds the confidence intervals; ``plots`` draws the figures; ``build`` ties them
+together for the CLI. Nothing here trains, drives or imports the tournament runner.
 """

@@ -1,21 +1,28 @@
 """``report`` end to end: load a tournament, build the tables, write the requested formats.
 
 The CLI calls ``build_report`` once; tests and ``demo`` call it too, so what a user sees and what
-is tested are the same code path.
+is tested are the same code path. One call may write several formats (Markdown, LaTeX, HTML)
+from the same tables and figures.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from formula_tourney.errors import UserInputError
-from formula_tourney.report import tables as tables_mod
+from formula_tourney.report.html import render_page
 from formula_tourney.report.load import TournamentData, load_tournament, resolve_tournament
+from formula_tourney.report.paper_tables import Context, build_tables
+from formula_tourney.report.plots import make_figures
+from formula_tourney.report.render import render_markdown, render_rich, write_latex
+from formula_tourney.report.table_model import ReportTable
 from formula_tourney.safeio import atomic_write_text
 
-FORMATS = ("terminal", "markdown", "latex", "html")
+FORMATS = ("markdown", "latex", "html")
+"""Formats a report can be written in, besides the terminal (the default when none is asked)."""
 
 
 @dataclass
@@ -23,8 +30,8 @@ class Report:
     """A built report: the data it read, its tables, and every file it wrote."""
 
     data: TournamentData
-    tables: list[tables_mod.ReportTable]
-    fmt: str
+    tables: list[ReportTable]
+    formats: tuple[str, ...]
     out_dir: Path | None
     files: dict[str, Path] = field(default_factory=dict)
     figures: dict[str, list[Path]] = field(default_factory=dict)
@@ -33,7 +40,8 @@ class Report:
     def to_json(self) -> dict[str, Any]:
         """The one JSON document of ``report --json``."""
         return {
-            "tournament": self.data.name, "root": str(self.data.root), "format": self.fmt,
+            "tournament": self.data.name, "root": str(self.data.root),
+            "formats": list(self.formats),
             "jobs": _job_counts(self.data), "problems": list(self.data.problems),
             "tables": {t.key: t.to_json() for t in self.tables},
             "files": {k: str(v) for k, v in self.files.items()},
@@ -41,8 +49,12 @@ class Report:
         }
 
     def render(self, console: Any) -> None:
-        """Terminal output: problems first (so a partial report is never mistaken for whole)."""
-        if self.fmt == "markdown":
+        """Terminal output: problems first (so a partial report is never mistaken for whole).
+
+        With Markdown among the formats, stdout carries the Markdown document alone (so it can be
+        piped into a file); the files written are listed by the caller on stderr.
+        """
+        if "markdown" in self.formats:
             console.print(self.markdown, markup=False, highlight=False, soft_wrap=True)
             return
         counts = _job_counts(self.data)
@@ -52,16 +64,19 @@ class Report:
             console.print("[yellow]Missing or failed:[/yellow]")
             for problem in self.data.problems:
                 console.print(f"  - {problem}", markup=False)
-        if self.fmt == "terminal":
+        if not self.formats:
             for table in self.tables:
-                tables_mod.render_rich(table, console)
-        for name, path in self.files.items():
-            console.print(f"wrote {name}: {path}", markup=False, highlight=False)
-        if self.figures:
-            console.print(f"wrote {sum(len(v) for v in self.figures.values())} figure files "
-                          f"to {next(iter(self.figures.values()))[0].parent}",
-                          markup=False, highlight=False)
+                render_rich(table, console)
+        for line in self.written():
+            console.print(line, markup=False, highlight=False)
 
+    def written(self) -> list[str]:
+        """One line per file written and one for the figures."""
+        lines = [f"wrote {name}: {path}" for name, path in self.files.items()]
+        if self.figures:
+            lines.append(f"wrote {sum(len(v) for v in self.figures.values())} figure files "
+                         f"to {next(iter(self.figures.values()))[0].parent}")
+        return lines
 
     def render_tables(self, console: Any, keys: tuple[str, ...] = ("table1",)) -> None:
         """Only some tables, e.g. Table 1 at the end of ``demo``; problems are still said."""
@@ -69,7 +84,7 @@ class Report:
             console.print(f"  - {problem}", markup=False)
         for table in self.tables:
             if table.key in keys:
-                tables_mod.render_rich(table, console)
+                render_rich(table, console)
 
 
 def _job_counts(data: TournamentData) -> dict[str, int]:
@@ -79,55 +94,62 @@ def _job_counts(data: TournamentData) -> dict[str, int]:
     return {"total": len(data.jobs), **{str(k): int(v) for k, v in counts.items()}}
 
 
+def check_formats(formats: str | Sequence[str]) -> tuple[str, ...]:
+    """The asked formats, in FORMATS order, each once; "terminal" (or none) is the terminal."""
+    asked = [formats] if isinstance(formats, str) else list(formats)
+    unknown = [f for f in asked if f not in (*FORMATS, "terminal")]
+    if unknown:
+        raise UserInputError(f"unknown report format {unknown[0]!r}; choose from "
+                             f"{', '.join(FORMATS)} (or none for the terminal)")
+    return tuple(f for f in FORMATS if f in asked)
+
+
 def build_report(tournament: str | None = None, results_dir: str | Path = "results",
                  part: str | None = None, out_dir: str | Path | None = None,
-                 fmt: str = "terminal", figures: bool | None = None) -> Report:
-    """Load, tabulate and write. ``figures`` defaults to on for LaTeX and HTML (which embed
-    them) and when an ``out_dir`` is given; files go to ``out_dir`` or ``<tournament>/report``."""
-    if fmt not in FORMATS:
-        raise UserInputError(f"unknown report format {fmt!r}; choose one of {', '.join(FORMATS)}")
+                 formats: str | Sequence[str] = (), figures: bool | None = None) -> Report:
+    """Load, tabulate and write every format in ``formats`` (any of markdown, latex, html;
+    none: the terminal). ``figures`` defaults to on for LaTeX and HTML (which embed them) and
+    when an ``out_dir`` is given; files go to ``out_dir`` or ``<tournament>/report``."""
+    chosen = check_formats(formats)
     root = resolve_tournament(tournament, results_dir)
     data = load_tournament(root, part=part)
-    tables = tables_mod.build_tables(data)
+    ctx = Context.build(data)
+    tables = build_tables(ctx)
     out = Path(out_dir) if out_dir is not None else None
+    embeds = {"latex", "html"} & set(chosen)
     if figures is None:
-        figures = fmt in ("latex", "html") or out is not None
-    writes = figures or fmt in ("latex", "html") or (fmt == "markdown" and out is not None)
+        figures = bool(embeds) or out is not None
+    writes = figures or bool(embeds) or ("markdown" in chosen and out is not None)
     if writes and out is None:
         out = root / "report" if part is None else root / "report" / part
-    report = Report(data=data, tables=tables, fmt=fmt, out_dir=out)
+    report = Report(data=data, tables=tables, formats=chosen, out_dir=out)
     title = f"Tournament {data.name}" + (f", part {part}" if part else "")
     if figures and out is not None:
-        from formula_tourney.report.plots import make_figures
-
-        report.figures = make_figures(data, tables, out / "figures")
-    if fmt == "markdown":
+        report.figures = make_figures(ctx, tables, out / "figures")
+    if "markdown" in chosen:
         report.markdown = markdown_document(title, tables, data.problems)
         if out is not None:
             report.files["report.md"] = atomic_write_text(out / "report.md", report.markdown)
-    elif fmt == "latex":
+    if "latex" in chosen and out is not None:
         pdfs = {k: next((p for p in v if p.suffix == ".pdf"), None)
                 for k, v in report.figures.items()}
-        report.files.update(tables_mod.write_latex(
+        report.files.update(write_latex(
             tables, out, title, data.problems,
             figures={k: p.relative_to(out) for k, p in pdfs.items() if p is not None},
         ))
-    elif fmt == "html":
-        from formula_tourney.report.html import render_page
-
+    if "html" in chosen and out is not None:
         page = render_page(title, tables, report.figures, data.problems,
                            summary={"root": data.root, **_job_counts(data)})
         report.files["report.html"] = atomic_write_text(out / "report.html", page)
     return report
 
 
-def markdown_document(title: str, tables: list[tables_mod.ReportTable],
-                      problems: list[str]) -> str:
+def markdown_document(title: str, tables: list[ReportTable], problems: list[str]) -> str:
     lines = [f"# {title}", ""]
     if problems:
         lines.append("**Missing or failed jobs**")
         lines.append("")
         lines.extend(f"- {p}" for p in problems)
         lines.append("")
-    lines.extend(tables_mod.render_markdown(t) for t in tables)
+    lines.extend(render_markdown(t) for t in tables)
     return "\n".join(lines)

@@ -11,7 +11,7 @@ import html
 from pathlib import Path
 from typing import Any
 
-from formula_tourney.report.tables import ReportTable
+from formula_tourney.report.table_model import DASH, ReportTable
 
 _CSS = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; color: #222; }
@@ -45,7 +45,7 @@ def table_html(table: ReportTable) -> str:
             row = table.rows[i]
             cells = []
             for m in metrics:
-                text = html.escape(row["text"].get((group, m), "-"))
+                text = html.escape(row["text"].get((group, m), DASH))
                 cls = " class='best'" if (i, group, m) in best else ""
                 cells.append(f"<td{cls}>{text}</td>")
             parts.append(f"<tr class='{row['kind']}'><td>{html.escape(row['label'])}</td>"

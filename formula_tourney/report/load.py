@@ -1,16 +1,17 @@
 """Read one tournament folder (index.sqlite + job folders) into frames, tolerating gaps.
 
-The report reads files only (docs/CONTRACTS.md, "tourney store" and "training (one run)"): it
-never imports the runner, so a half-finished or partly failed tournament still renders. Every gap
-(a failed job, a job still pending, a part with no jobs, a table that cannot be read) becomes a
-line in ``TournamentData.problems`` instead of an exception.
+The report reads files only, and only through the results layout's readers: the index through
+``results.index.read_index`` and each job folder through ``results.folder.JobFolder`` (baseline
+drives through ``BaselineFolder``), so it never imports the runner and a half-finished or partly
+failed tournament still renders. Every gap (a failed job, a job still pending, a part with no
+jobs, a file that cannot be read, a folder of another layout version) becomes a line in
+``TournamentData.problems`` naming what is missing, instead of an exception.
 """
 
 from __future__ import annotations
 
 import json
-import re
-import sqlite3
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,32 +19,23 @@ from typing import Any
 import pandas as pd
 
 from formula_tourney.errors import UserInputError
+from formula_tourney.results import layout as L
+from formula_tourney.results.folder import (
+    BaselineFolder,
+    CorruptResultError,
+    JobFolder,
+    OldSchemaError,
+)
+from formula_tourney.results.index import read_index, read_meta
+from formula_tourney.tourney.spec import Selection
 
-JOB_COLUMNS = [
-    "job_id", "study", "part", "entrant", "variant", "family", "seed", "reference", "lac",
-    "train_tracks", "status", "reason", "attempts", "path", "started_at", "finished_at", "wall_s",
-]
-PART_COLUMNS = ["part", "study", "position", "status", "entrants", "promoted", "reason"]
-BASELINE_COLUMNS = [
-    "part", "bot", "track", "reference", "best_lap_s", "damage", "finished", "reference_limit_s",
-    "status", "reason", "path",
-]
-GENERAL_COLUMNS = [
-    "part", "job_id", "entrant", "seed", "episode", "checkpoint", "train_track", "train_lap_s",
-    "laps", "chosen",
-]
-TEST_COLUMNS = [
-    "episode", "env_steps", "track", "start_s_m", "finished", "best_lap_s", "laps", "damage",
-    "reward", "steps", "termination", "checkpoint",
-]
-EPISODE_COLUMNS = [
-    "episode", "track", "reward", "steps", "env_steps", "updates", "laps", "best_lap_s", "damage",
-    "termination", "epsilon", "seconds",
-]
-LAP_COLUMNS = ["episode", "track", "start_s_m", "lap_index", "lap_time_s", "lap_damage", "clean"]
+JOB_TABLE_NAMES = ("tests", "episodes", "laps")
 # Columns copied from the job index onto every row of a job's tables, so that one concatenated
 # frame can be grouped by part/entrant/seed without joins.
 JOB_KEYS = ["job_id", "part", "entrant", "variant", "family", "seed", "reference", "lac"]
+DEFAULT_UNSEEN_FINISH_RATE = float(Selection.model_fields["min_unseen_finish_rate"].default)
+"""The tournament spec's default share of starts a general model finishes on each unseen track,
+used for parts whose stored spec does not say."""
 
 
 @dataclass
@@ -59,9 +51,12 @@ class TournamentData:
     episodes: pd.DataFrame
     laps: pd.DataFrame
     general_models: pd.DataFrame = field(default_factory=lambda: pd.DataFrame(
-        columns=GENERAL_COLUMNS))
+        columns=L.INDEX_TABLES["general_models"]))
     configs: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """Run specification (config.json's ``run_spec``) per job id."""
     problems: list[str] = field(default_factory=list)
+    unseen_finish_rates: dict[str, float] = field(default_factory=dict)
+    """Per part, the tournament's ``selection.min_unseen_finish_rate`` (from the stored spec)."""
 
     def part_order(self) -> list[str]:
         """Parts in tournament order: the ``parts`` table's position, then any part seen in jobs."""
@@ -75,28 +70,33 @@ class TournamentData:
         return order
 
     def job_dir(self, job_id: str) -> Path:
-        """Folder of one job (the index's relative ``path``, else the contract's default)."""
+        """Folder of one job (the index's relative ``path``, else the layout's default)."""
         row = self.jobs.loc[self.jobs["job_id"] == job_id]
         rel = str(row["path"].iloc[0]) if not row.empty and _present(row["path"].iloc[0]) \
             else job_id
         return self.root / rel
 
-    def trace_path(self, job_id: str, track: str) -> Path:
-        """Where the job's best clean test lap on ``track`` is stored (may not exist)."""
-        # the same file-name rule as training.loop._trace_name (a track may be a path)
-        name = re.sub(r"[^A-Za-z0-9_.+-]", "_", str(track))[:100] or "track"
-        return self.job_dir(job_id) / "traces" / f"{name}.parquet"
-
     def read_trace(self, job_id: str, track: str) -> pd.DataFrame | None:
-        """The best clean test lap's trace, or None when the job wrote none for this track."""
-        path = self.trace_path(job_id, track)
-        if not path.is_file():
-            return None
+        """The best clean test lap's trace, or None when the job wrote none for this track (an
+        unreadable one is a problem)."""
         try:
-            return pd.read_parquet(path)
-        except Exception as exc:  # a corrupt file is a report problem, not a crash
-            self.problems.append(f"{job_id}: cannot read {path.name} ({exc})")
+            return JobFolder(self.job_dir(job_id)).trace(track)
+        except CorruptResultError as err:
+            self.problems.append(f"{job_id}: {err}")
             return None
+
+    def read_baseline_trace(self, rel_path: str) -> pd.DataFrame | None:
+        """A baseline drive's lap trace (``baselines.path`` relative to the root), or None."""
+        try:
+            return BaselineFolder(self.root / rel_path).trace()
+        except CorruptResultError as err:
+            self.problems.append(f"baseline: {err}")
+            return None
+
+    def unseen_finish_rate(self, parts: Iterable[str]) -> float:
+        """The general-model selection rule's finish rate of these parts (the strictest)."""
+        rates = [self.unseen_finish_rates.get(str(p), DEFAULT_UNSEEN_FINISH_RATE) for p in parts]
+        return max(rates, default=DEFAULT_UNSEEN_FINISH_RATE)
 
 
 def resolve_tournament(tournament: str | None, results_dir: str | Path = "results") -> Path:
@@ -108,12 +108,12 @@ def resolve_tournament(tournament: str | None, results_dir: str | Path = "result
     results = Path(results_dir)
     if tournament:
         as_path = Path(tournament)
-        if (as_path / "index.sqlite").is_file():
+        if (as_path / L.INDEX_FILE).is_file():
             return as_path
-        if as_path.name == "index.sqlite" and as_path.is_file():
+        if as_path.name == L.INDEX_FILE and as_path.is_file():
             return as_path.parent
         candidate = results / tournament
-        if (candidate / "index.sqlite").is_file():
+        if (candidate / L.INDEX_FILE).is_file():
             return candidate
         known = _known_tournaments(results)
         hint = f"; known under {results}: {', '.join(known)}" if known else ""
@@ -127,41 +127,19 @@ def resolve_tournament(tournament: str | None, results_dir: str | Path = "result
             f"no tournament results under {results}: run `formula-tourney run` first or pass "
             "--tournament PATH"
         )
-    return max((results / k for k in known), key=lambda p: (p / "index.sqlite").stat().st_mtime)
+    return max((results / k for k in known), key=lambda p: (p / L.INDEX_FILE).stat().st_mtime)
 
 
 def _known_tournaments(results: Path) -> list[str]:
     if not results.is_dir():
         return []
-    return sorted(p.name for p in results.iterdir() if (p / "index.sqlite").is_file())
-
-
-def _read_sql_table(db: Path, table: str, columns: list[str], problems: list[str],
-                    optional: bool = False) -> pd.DataFrame:
-    """One table of the index, read-only; a missing table yields an empty frame and a problem
-    (no problem for ``optional`` tables, which older or foreign stores may lack)."""
-    try:
-        con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
-    except sqlite3.Error as exc:
-        raise UserInputError(f"{db}: cannot open the results index ({exc})") from exc
-    try:
-        frame = pd.read_sql_query(f"SELECT * FROM {table}", con)  # noqa: S608 (fixed names)
-    except (sqlite3.Error, pd.errors.DatabaseError) as exc:
-        if not optional:
-            problems.append(f"index.sqlite: table {table!r} unreadable ({exc})")
-        frame = pd.DataFrame(columns=columns)
-    finally:
-        con.close()
-    for col in columns:
-        if col not in frame.columns:
-            frame[col] = pd.NA
-    return frame
+    return sorted(p.name for p in results.iterdir() if (p / L.INDEX_FILE).is_file())
 
 
 def _json_list(value: Any) -> list[Any]:
     if isinstance(value, list):
         return value
-    if value is None or (isinstance(value, float) and value != value):
+    if not _present(value):
         return []
     try:
         parsed = json.loads(str(value))
@@ -179,40 +157,68 @@ def _bool(value: Any) -> bool:
         return False
 
 
-def _read_job_table(path: Path, columns: list[str], what: str, job_id: str,
-                    problems: list[str]) -> pd.DataFrame | None:
-    if not path.is_file():
-        return None
+def _finish_rates(meta: dict[str, str]) -> dict[str, float]:
+    """Each part's ``selection.min_unseen_finish_rate`` from the spec the tournament stored."""
     try:
-        frame = pd.read_parquet(path)
-    except Exception as exc:
-        problems.append(f"{job_id}: cannot read {what} ({exc})")
-        return None
-    for col in columns:
-        if col not in frame.columns:
-            frame[col] = pd.NA
-    return frame
+        spec = json.loads(meta.get("spec") or "{}")
+    except ValueError:
+        return {}
+    declared = spec.get("parts") if isinstance(spec, dict) else None
+    rates: dict[str, float] = {}
+    for part in declared if isinstance(declared, list) else []:
+        if not isinstance(part, dict):
+            continue
+        rate = (part.get("selection") or {}).get("min_unseen_finish_rate")
+        if isinstance(part.get("name"), str) and isinstance(rate, int | float):
+            rates[part["name"]] = float(rate)
+    return rates
+
+
+def _read_job(folder: JobFolder, job_id: str, problems: list[str]
+              ) -> tuple[dict[str, Any] | None, dict[str, pd.DataFrame]]:
+    """A job folder's run spec and the tables it wrote; what cannot be read is a problem line.
+
+    A folder of another layout version is not read at all: its columns may mean other things.
+    """
+    spec: dict[str, Any] | None = None
+    try:
+        spec = folder.config()
+    except FileNotFoundError:
+        pass  # not started yet, or failed before writing anything
+    except OldSchemaError as err:
+        problems.append(f"{job_id}: written by another version; cannot read ({err})")
+        return None, {}
+    except CorruptResultError as err:
+        problems.append(f"{job_id}: {err}")
+    tables: dict[str, pd.DataFrame] = {}
+    for name in JOB_TABLE_NAMES:
+        if not folder.table_path(name).is_file():
+            continue
+        try:
+            tables[name] = folder.table(name)
+        except CorruptResultError as err:
+            problems.append(f"{job_id}: {err}")
+    return spec, tables
 
 
 def load_tournament(root: str | Path, part: str | None = None) -> TournamentData:
-    """Read a tournament folder: the index, then every job's parquet files that exist.
+    """Read a tournament folder: the index, then every job folder's tables that exist.
 
     ``part`` restricts jobs (and baselines) to one part; an unknown part is a UserInputError that
-    lists the known ones. Jobs that failed, are pending, or are marked done but lack their files
-    are listed in ``problems``; their partial tables (a failed job's tests so far) still count,
-    because a report of what exists is more useful than none.
+    lists the known ones. A missing index is a UserInputError, a garbage one a
+    CorruptResultError naming the file. Jobs that failed, are pending, or are marked done but
+    lack their files are listed in ``problems``; their partial tables (a failed job's tests so
+    far) still count, because a report of what exists is more useful than none.
     """
     root = Path(root)
-    db = root / "index.sqlite"
-    if not db.is_file():
-        raise UserInputError(f"{root}: no index.sqlite (not a tournament results folder)")
     problems: list[str] = []
-    jobs = _read_sql_table(db, "jobs", JOB_COLUMNS, problems)
-    parts = _read_sql_table(db, "parts", PART_COLUMNS, problems)
-    baselines = _read_sql_table(db, "baselines", BASELINE_COLUMNS, problems)
-    general = _read_sql_table(db, "general_models", GENERAL_COLUMNS, problems, optional=True)
+    index = read_index(root, problems)
+    rates = _finish_rates(read_meta(root))
+    jobs, parts = index["jobs"].copy(), index["parts"].copy()
+    baselines, general = index["baselines"].copy(), index["general_models"].copy()
     general["chosen"] = general["chosen"].map(_bool).astype(bool)
     general["episode"] = pd.to_numeric(general["episode"], errors="coerce")
+    general["train_lap_s"] = pd.to_numeric(general["train_lap_s"], errors="coerce")
 
     jobs["seed"] = pd.to_numeric(jobs["seed"], errors="coerce").fillna(-1).astype(int)
     jobs["lac"] = jobs["lac"].map(_bool).astype(bool)
@@ -259,47 +265,37 @@ def load_tournament(root: str | Path, part: str | None = None) -> TournamentData
             problems.append(f"baseline {brow['bot']} on {brow['track']} ({brow['part']}): "
                             f"{brow['status']}{reason}")
 
-    tables: dict[str, list[pd.DataFrame]] = {"tests": [], "episodes": [], "laps": []}
-    specs = {"tests": TEST_COLUMNS, "episodes": EPISODE_COLUMNS, "laps": LAP_COLUMNS}
+    frames: dict[str, list[pd.DataFrame]] = {name: [] for name in JOB_TABLE_NAMES}
     configs: dict[str, dict[str, Any]] = {}
     for _, job in jobs.iterrows():
         job_id = str(job["job_id"])
-        job_dir = root / (str(job["path"]) if _present(job["path"]) else job_id)
+        folder = JobFolder(root / (str(job["path"]) if _present(job["path"]) else job_id))
         status = job["status"]
         if status == "failed":
             reason = job["reason"] if _present(job["reason"]) else "no reason recorded"
             problems.append(f"{job_id}: failed ({reason}); partial results used if any")
         elif status in ("pending", "running"):
             problems.append(f"{job_id}: {status}; not finished")
-        config_path = job_dir / "config.json"
-        if config_path.is_file():
-            try:
-                configs[job_id] = json.loads(config_path.read_text(encoding="utf-8"))
-            except (OSError, ValueError) as exc:
-                problems.append(f"{job_id}: cannot read config.json ({exc})")
-        found_any = False
-        for name, frames in tables.items():
-            frame = _read_job_table(job_dir / f"{name}.parquet", specs[name], name, job_id,
-                                    problems)
-            if frame is None:
-                continue
-            found_any = True
+        spec, tables = _read_job(folder, job_id, problems)
+        if spec is not None:
+            configs[job_id] = spec
+        for name, frame in tables.items():
+            frame = frame.copy()
             for key in JOB_KEYS:
                 frame[key] = job[key]
-            frames.append(frame)
-        if status == "done" and not (job_dir / "tests.parquet").is_file():
-            problems.append(f"{job_id}: marked done but {job_dir} has no tests.parquet (missing)")
-        elif status == "done" and not found_any:
-            problems.append(f"{job_id}: marked done but its folder has no results (missing)")
+            frames[name].append(frame)
+        if status == "done" and not folder.table_path("tests").is_file():
+            problems.append(f"{job_id}: marked done but {folder.path} has no tests.parquet "
+                            "(missing)")
 
     def concat(name: str) -> pd.DataFrame:
-        frames = [f for f in tables[name] if not f.empty]
-        if not frames:
-            return pd.DataFrame(columns=[*specs[name], *JOB_KEYS])
-        return pd.concat(frames, ignore_index=True)
+        parts_ = [f for f in frames[name] if not f.empty]
+        if not parts_:
+            return pd.DataFrame(columns=[*L.JOB_TABLES[name], *JOB_KEYS])
+        return pd.concat(parts_, ignore_index=True)
 
     tests = concat("tests")
-    for col in ("best_lap_s", "damage", "episode", "start_s_m"):
+    for col in ("best_lap_s", "damage", "episode", "start_s_m", "distance_m"):
         tests[col] = pd.to_numeric(tests[col], errors="coerce")
     tests["finished"] = tests["finished"].map(_bool).astype(bool)
     episodes = concat("episodes")
@@ -309,7 +305,7 @@ def load_tournament(root: str | Path, part: str | None = None) -> TournamentData
     return TournamentData(
         root=root, name=root.name, jobs=jobs, parts=parts, baselines=baselines, tests=tests,
         episodes=episodes, laps=laps, general_models=general, configs=configs,
-        problems=problems,
+        problems=problems, unseen_finish_rates=rates,
     )
 
 

@@ -3,7 +3,8 @@
 Each ``plot_*`` function draws one figure from plain frames and returns the files it wrote, so it
 can be called on any run's data; ``make_figures`` picks what to draw for a whole tournament
 (learning curves per part, generalisation per Table 3 configuration, traces/line/delta for each
-Table 1 column's fastest run, and adopted-target ablation pairs).
+Table 1 column's fastest run, and adopted-target ablation pairs). A number a figure prints that a
+table also shows (a lap time in a title) is passed in from the table, never recomputed here.
 """
 
 from __future__ import annotations
@@ -17,8 +18,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from formula_tourney.errors import UserInputError
 from formula_tourney.report import stats
+from formula_tourney.report.paper_tables import Context, bot_row_label
+from formula_tourney.report.table_model import ReportTable
 from formula_tourney.safeio import atomic_write_bytes
+from formula_tourney.sim.catalog import load_track
 
 FORMATS = ("png", "pdf")
 DPI = 120
@@ -172,9 +177,15 @@ def track_edges(track: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
 
 
 def plot_racing_line(traces: dict[str, pd.DataFrame], title: str, out_base: Path,
-                     track: Any = None) -> list[Path]:
+                     track: Any = None,
+                     lap_times_s: dict[str, float] | None = None) -> list[Path]:
     """Each driver's path on the track map coloured by speed, side by side on one colour scale,
-    so that where a bot and an entrant brake and which line they take can be compared."""
+    so that where a bot and an entrant brake and which line they take can be compared.
+
+    ``lap_times_s`` (label -> s) is printed in each panel's title: the lap time the tables show
+    for that driver, not one re-measured from the trace (whose samples start up to a control
+    step after the line).
+    """
     plt = _pyplot()
     n = max(len(traces), 1)
     fig, axes = plt.subplots(1, n, figsize=(5.2 * n, 4.8), squeeze=False)
@@ -189,8 +200,8 @@ def plot_racing_line(traces: dict[str, pd.DataFrame], title: str, out_base: Path
             ax.plot(xr, yr, color="0.6", lw=0.8)
         mappable = ax.scatter(trace["x_m"], trace["y_m"], c=trace["speed_kmh"], s=3,
                               cmap="viridis", vmin=vmin, vmax=vmax)
-        lap = trace["time_s"].iloc[-1] - trace["time_s"].iloc[0]
-        ax.set_title(f"{label}: {lap:.2f} s", fontsize=9)
+        lap = (lap_times_s or {}).get(label, math.nan)
+        ax.set_title(f"{label}: {lap:.2f} s" if math.isfinite(lap) else label, fontsize=9)
         ax.set_aspect("equal")
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
@@ -266,8 +277,9 @@ def plot_ablation(episodes: pd.DataFrame, labels: dict[str, str], title: str, ou
 
 
 def ablation_pairs(data: Any) -> list[dict[str, Any]]:
-    """Entrant pairs of one part that differ only in one boolean override (e.g. the adopted
-    target flag): same variant, line, LAC and train tracks. Read from the jobs' config.json."""
+    """Entrant pairs of one part that differ only in one boolean setting (e.g. the adopted
+    target flag): same variant, line, LAC and train tracks, and agent and env settings equal but
+    for that one. Read from the jobs' run specs (config.json)."""
     pairs: list[dict[str, Any]] = []
     jobs = data.jobs
     if jobs.empty:
@@ -280,7 +292,8 @@ def ablation_pairs(data: Any) -> list[dict[str, Any]]:
         key = (str(job["part"]), str(job["entrant"]))
         per_entrant.setdefault(key, {
             "variant": job["variant"], "reference": job["reference"], "lac": bool(job["lac"]),
-            "train": tuple(job["train_tracks"]), "overrides": dict(cfg.get("overrides") or {}),
+            "train": tuple(job["train_tracks"]),
+            "settings": {**(cfg.get("env") or {}), **(cfg.get("agent") or {})},
         })
     keys = list(per_entrant)
     for i, ka in enumerate(keys):
@@ -290,12 +303,12 @@ def ablation_pairs(data: Any) -> list[dict[str, Any]]:
             a, b = per_entrant[ka], per_entrant[kb]
             if any(a[f] != b[f] for f in ("variant", "reference", "lac", "train")):
                 continue
-            names = set(a["overrides"]) | set(b["overrides"])
-            diff = [n for n in names if a["overrides"].get(n) != b["overrides"].get(n)]
+            names = set(a["settings"]) | set(b["settings"])
+            diff = [n for n in names if a["settings"].get(n) != b["settings"].get(n)]
             if len(diff) != 1:
                 continue
             flag = diff[0]
-            va, vb = a["overrides"].get(flag), b["overrides"].get(flag)
+            va, vb = a["settings"].get(flag), b["settings"].get(flag)
             if not all(isinstance(v, bool) or v is None for v in (va, vb)):
                 continue
             # off first (green), on second (red), as in the paper's figure
@@ -305,15 +318,11 @@ def ablation_pairs(data: Any) -> list[dict[str, Any]]:
 
 
 def _load_track(name: str) -> Any:
-    """The track's geometry for map backgrounds, or None while ``sim.catalog`` is unavailable
-    (the map is still drawn from the traces' x, y)."""
-    try:
-        from formula_tourney.sim.catalog import load_track
-    except ImportError:
-        return None
+    """The track's geometry for map backgrounds, or None where it cannot be loaded here (a user
+    track of another machine): the map is still drawn from the traces' x, y."""
     try:
         return load_track(name)
-    except Exception:  # an unknown or user track missing here: draw without edges
+    except (UserInputError, OSError, ValueError):
         return None
 
 
@@ -357,31 +366,24 @@ def bot_trace(data: Any, part: str, track: str) -> tuple[str, pd.DataFrame] | No
     for _, row in sel.iterrows():
         if not isinstance(row["path"], str) or not row["path"]:
             continue
-        path = data.root / row["path"] / "trace.parquet"
-        if not path.is_file():
+        trace = data.read_baseline_trace(row["path"])
+        if trace is None:
             continue
-        try:
-            trace = pd.read_parquet(path)
-        except Exception as exc:
-            data.problems.append(f"baseline trace {path}: unreadable ({exc})")
-            continue
-        from formula_tourney.report.tables import bot_label
-
         if trace.empty or not {"distance_m", "speed_kmh", "x_m", "y_m"} <= set(trace.columns):
-            data.problems.append(f"baseline trace {path}: missing columns")
+            data.problems.append(f"baseline trace {row['path']}: missing columns")
             continue
-        return bot_label(str(row["bot"])), one_lap(trace)
+        label, _ = bot_row_label(rows, str(row["bot"]), str(row["reference"]))
+        return label, one_lap(trace)
     return None
 
 
-def make_figures(data: Any, tables_: list[Any], out_dir: Path) -> dict[str, list[Path]]:
+def make_figures(ctx: Context, tables_: list[ReportTable],
+                 out_dir: Path) -> dict[str, list[Path]]:
     """Draw every figure the tournament's results support; a figure whose inputs are missing is
     skipped and said in ``data.problems`` (never an exception for absent data)."""
-    from formula_tourney.report.tables import Context
-
     out_dir = Path(out_dir)
     figures: dict[str, list[Path]] = {}
-    ctx = Context.build(data)
+    data = ctx.data
     models = ctx.models
     jobs = ctx.jobs
     train_of = dict(zip(jobs["job_id"].astype(str), jobs["train_tracks"], strict=True))
@@ -420,13 +422,15 @@ def make_figures(data: Any, tables_: list[Any], out_dir: Path) -> dict[str, list
         label = f"{rec['row']} ({job_id.rsplit('/', 1)[-1]})"
         figures[f"trace-{name}"] = plot_action_trace(
             trace, f"{group}: fastest lap, {label}", out_dir / f"trace-{name}")
-        rival = _rival(data, table1.records, rec)
+        rival = _rival(data, table1, rec)
         traces = {label: trace}
+        lap_times = {label: rec["bLT"]}
         if rival is not None:
             traces[rival[0]] = rival[1]
+            lap_times[rival[0]] = rival[2]
         figures[f"line-{name}"] = plot_racing_line(
             traces, f"{group}: racing line coloured by speed", out_dir / f"line-{name}",
-            _load_track(track))
+            _load_track(track), lap_times)
         if rival is not None:
             figures[f"delta-{name}"] = plot_lap_delta(
                 trace, rival[1], label, rival[0], f"{group}: lap vs lap",
@@ -454,17 +458,19 @@ def _group_leaders(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return list(best.values())
 
 
-def _rival(data: Any, records: list[dict[str, Any]],
-           leader: dict[str, Any]) -> tuple[str, pd.DataFrame] | None:
-    """What to compare the fastest lap with: a stored follower-bot lap, else the runner-up
-    entrant of the same column."""
+def _rival(data: Any, table1: ReportTable,
+           leader: dict[str, Any]) -> tuple[str, pd.DataFrame, float] | None:
+    """What to compare the fastest lap with, and its lap time as Table 1 shows it: a stored
+    follower-bot lap, else the runner-up entrant of the same column."""
     bot = bot_trace(data, leader["part"], leader["track"])
     if bot is not None:
-        return bot
-    others = [r for r in records if r["group"] == leader["group"] and r is not leader
+        row = next((r for r in table1.rows if r["kind"] == "bot" and r["label"] == bot[0]), None)
+        lap_s = row["values"].get((leader["group"], "bLT"), math.nan) if row else math.nan
+        return bot[0], bot[1], float(lap_s)
+    others = [r for r in table1.records if r["group"] == leader["group"] and r is not leader
               and r.get("status") == "ok" and r.get("best_job")]
     for rec in sorted(others, key=lambda r: r["bLT"]):
         trace = data.read_trace(rec["best_job"], leader["track"])
         if trace is not None and not trace.empty:
-            return f"{rec['row']} ({rec['best_job'].rsplit('/', 1)[-1]})", trace
+            return f"{rec['row']} ({rec['best_job'].rsplit('/', 1)[-1]})", trace, rec["bLT"]
     return None

@@ -21,10 +21,12 @@ from gymnasium.vector.utils import batch_space
 
 from formula_tourney.errors import UserInputError
 from formula_tourney.sim import kernels as K
-from formula_tourney.sim.car import car_from_overrides, pack_params, set_start
+from formula_tourney.sim.car import pack_params, set_start
+from formula_tourney.sim.catalog import load_track
+from formula_tourney.sim.config import EnvConfig, ResetOptions, default_config
 from formula_tourney.sim.reference import ReferenceLine
+from formula_tourney.sim.render import TrackRenderer
 from formula_tourney.sim.sensors import observation_bounds, observation_names, track_geometry
-from formula_tourney.sim.track import Track
 
 TERMINATIONS = {K.TERM_OFF_TRACK: "off_track", K.TERM_BACKWARDS: "backwards", K.TERM_SLOW: "slow"}
 DEFAULT_START_BEFORE_LINE_M = 50.0
@@ -51,129 +53,51 @@ class _NoLap(float):
 NO_LAP = _NoLap("nan")
 
 
-def default_config() -> dict[str, Any]:
-    """Every config key with its default (highway-env style; a user's dict is merged over it).
-
-    Keys beyond docs/CONTRACTS.md: ``slow_penalty`` (reward on a slow end is ``-slow_penalty``:
-    DESIGN.md records that a slow end without penalty taught a run to stop on track) and
-    ``grass_width_m`` (grass beyond each asphalt edge before the wall).
-    """
-    return {
-        "track": "oval",
-        "reference_line": "centre",
-        "lac": False,
-        "lac_distances_m": [20.0, 40.0, 60.0, 80.0],
-        "control_period_s": 0.2,
-        "physics_hz": 100.0,
-        "max_steps": 1000,
-        "terminate_off_track": True,
-        "terminate_backwards": True,
-        "terminate_slow": True,
-        "slow_speed_kmh": 10.0,
-        "slow_patience_steps": 25,
-        "slow_penalty": 100.0,
-        "damage_weight": 0.01,
-        "random_start": False,
-        "start_speed_mps": 0.0,
-        "grass_width_m": 5.0,
-        "car": {},
-    }
-
-
-def _num(cfg: Mapping, key: str, lo: float | None = None, hi: float | None = None,
-         lo_open: bool = False) -> float:
-    v = cfg[key]
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
-        raise UserInputError(f"config key '{key}': expected a number, got {v!r}")
-    v = float(v)
-    if not math.isfinite(v) or (lo is not None and (v <= lo if lo_open else v < lo)) or (
-            hi is not None and v > hi):
-        bound = f"{'>' if lo_open else '>='} {lo}" if lo is not None else ""
-        if hi is not None:
-            bound += f"{' and ' if bound else ''}<= {hi}"
-        raise UserInputError(f"config key '{key}': {v!r} is out of range (must be {bound})")
-    return v
-
-
-def _int(cfg: Mapping, key: str, lo: int) -> int:
-    v = cfg[key]
-    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-        raise UserInputError(f"config key '{key}': expected an integer >= {lo}, got {v!r}")
-    return int(v)
-
-
-def _bool(cfg: Mapping, key: str) -> bool:
-    v = cfg[key]
-    if not isinstance(v, (bool, np.bool_)):
-        raise UserInputError(f"config key '{key}': expected true or false, got {v!r}")
-    return bool(v)
-
-
-def resolve_config(config: Mapping[str, Any] | None) -> dict[str, Any]:
-    """Merge ``config`` over :func:`default_config` and check every value.
-
-    Unknown keys are an error (stricter than highway-env, which ignores them silently).
-    """
-    cfg = default_config()
-    if config is None:
-        return cfg
-    if not isinstance(config, Mapping):
-        raise UserInputError(f"config: expected a dict, got {type(config).__name__}")
-    unknown = sorted(set(config) - set(cfg))
-    if unknown:
-        raise UserInputError(
-            f"config: unknown key(s) {', '.join(map(repr, unknown))}; known keys: "
-            f"{', '.join(sorted(cfg))}")
-    cfg.update(config)
-    return cfg
-
-
 class _Batch:
     """N cars on one track: config, compiled-kernel arrays and per-car episode bookkeeping."""
 
-    def __init__(self, n: int, config: Mapping[str, Any] | None, threads: int = 1):
+    def __init__(self, n: int, config: Mapping[str, Any] | EnvConfig | None, threads: int = 1):
         most = numba.config.NUMBA_NUM_THREADS
         if not isinstance(threads, (int, np.integer)) or not 1 <= threads <= most:
             raise UserInputError(f"threads: expected 1..{most}, got {threads!r}")
         self.threads = int(threads)
-        cfg = resolve_config(config)
-        self.config = cfg
-        self.track = self._load_track(cfg["track"])
-        self.reference = self._reference(cfg["reference_line"])
-        self.car = car_from_overrides(self._car_dict(cfg["car"]))
+        cfg = EnvConfig.parse(config)
+        self.env_config = cfg
+        self.config = cfg.as_dict()
+        self.track = load_track(cfg.track)
+        self.reference = self._reference(cfg.reference_line)
+        self.car = cfg.car_params()
         arrays = pack_params(self.car)
         self.params, self.torque, self.gears = arrays.params, arrays.torque, arrays.gears
-        self.lac = _bool(cfg, "lac")
-        lac_d = cfg["lac_distances_m"]
-        if (not isinstance(lac_d, (list, tuple, np.ndarray)) or len(lac_d) == 0
-                or not all(isinstance(d, (int, float, np.integer, np.floating))
-                           and not isinstance(d, bool) and 0 < float(d) < self.track.length_m
-                           for d in lac_d)):
-            raise UserInputError("config key 'lac_distances_m': expected a non-empty list of "
-                                 f"distances in (0, track length), got {lac_d!r}")
-        self.lac_d = np.array(lac_d, dtype=float)
-        period = _num(cfg, "control_period_s", 0.0, 10.0, lo_open=True)
-        hz = _num(cfg, "physics_hz", 100.0, 10000.0)
-        self.n_sub = max(int(round(period * hz)), 1)
+        self.lac = cfg.lac
+        # The one check that needs the track: LAC must look less than a lap ahead.
+        too_far = [d for d in cfg.lac_distances_m if not d < self.track.length_m]
+        if too_far:
+            raise UserInputError(
+                f"config key 'lac_distances_m': {too_far} not shorter than the track "
+                f"({self.track.length_m:.1f} m); distances must be in (0, track length)")
+        self.lac_d = np.array(cfg.lac_distances_m, dtype=float)
+        period = cfg.control_period_s
+        self.n_sub = max(int(round(period * cfg.physics_hz)), 1)
         self.period_s = period
-        self.max_steps = _int(cfg, "max_steps", 1)
-        self.slow_patience = _int(cfg, "slow_patience_steps", 1)
-        self.start_speed = _num(cfg, "start_speed_mps", 0.0, 100.0)
-        self.random_start = _bool(cfg, "random_start")
-        self.grass_w = _num(cfg, "grass_width_m", 0.0, 100.0)
+        self.max_steps = cfg.max_steps
+        self.slow_patience = cfg.slow_patience_steps
+        self.start_speed = cfg.start_speed_mps
+        self.random_start = cfg.random_start
+        self.grass_w = cfg.grass_width_m
         self.cfg = np.zeros(K.N_CFG)
         c = self.cfg
         c[K.C_DT] = period
         c[K.C_NSUB] = self.n_sub
         c[K.C_GRASS_W] = self.grass_w
         c[K.C_MAX_STEPS] = self.max_steps
-        c[K.C_TERM_OFF] = _bool(cfg, "terminate_off_track")
-        c[K.C_TERM_BACK] = _bool(cfg, "terminate_backwards")
-        c[K.C_TERM_SLOW] = _bool(cfg, "terminate_slow")
-        c[K.C_SLOW_MPS] = _num(cfg, "slow_speed_kmh", 0.0, 400.0) / 3.6
+        c[K.C_TERM_OFF] = cfg.terminate_off_track
+        c[K.C_TERM_BACK] = cfg.terminate_backwards
+        c[K.C_TERM_SLOW] = cfg.terminate_slow
+        c[K.C_SLOW_MPS] = cfg.slow_speed_kmh / 3.6
         c[K.C_SLOW_PATIENCE] = self.slow_patience
-        c[K.C_DMG_W] = _num(cfg, "damage_weight", 0.0)
-        c[K.C_SLOW_PEN] = _num(cfg, "slow_penalty", 0.0)
+        c[K.C_DMG_W] = cfg.damage_weight
+        c[K.C_SLOW_PEN] = cfg.slow_penalty
         c[K.C_LAC] = 1.0 if self.lac else 0.0
         c[K.C_LENGTH] = self.track.length_m
         self.geom = track_geometry(self.track, self.reference)
@@ -204,27 +128,12 @@ class _Batch:
         self._ref_y = self.reference.y_m.tolist()
         self._ref_h = self.reference.heading_rad.tolist()
 
-    @staticmethod
-    def _load_track(spec: Any) -> Track:
-        if isinstance(spec, Track):
-            return spec
-        if isinstance(spec, str):
-            try:
-                from formula_tourney.sim.catalog import load_track
-            except ImportError as exc:  # the catalog ships with the built-in tracks
-                raise UserInputError(
-                    f"config key 'track': cannot resolve {spec!r} (track catalog unavailable: "
-                    f"{exc}); pass a Track instance") from None
-            return load_track(spec)
-        raise UserInputError(
-            f"config key 'track': expected a track name or a Track, got {type(spec).__name__}")
-
     def _reference(self, spec: Any) -> ReferenceLine:
         if isinstance(spec, str):
             if spec != "centre":
                 raise UserInputError(
                     f"config key 'reference_line': {spec!r} is not 'centre'; pass an array of "
-                    "offsets (lines.registry.reference_offsets) for other lines")
+                    "offsets (bots.reference.reference_offsets) for other lines")
             return ReferenceLine.centre(self.track)
         off = np.asarray(spec, dtype=float)
         tr = self.track
@@ -235,12 +144,6 @@ class _Batch:
         if np.any(off > tr.width_left_m) or np.any(off < -tr.width_right_m):
             raise UserInputError("config key 'reference_line': offsets leave the asphalt")
         return ReferenceLine.from_offsets(tr, off)
-
-    @staticmethod
-    def _car_dict(spec: Any) -> dict:
-        if not isinstance(spec, Mapping):
-            raise UserInputError(f"config key 'car': expected a dict, got {spec!r}")
-        return dict(spec)
 
     def start_pose(self, s_m: float) -> tuple[float, float, float, int]:
         """Point, heading and sample index of the reference line at track position ``s_m``.
@@ -261,22 +164,17 @@ class _Batch:
         dh = math.remainder(rh[j] - rh[i], 2 * math.pi)
         return x, y, rh[i] + t * dh, i
 
-    def reset_car(self, c: int, rng: np.random.Generator, options: Mapping | None) -> None:
+    def reset_car(self, c: int, rng: np.random.Generator,
+                  options: Mapping[str, Any] | ResetOptions | None) -> None:
         """Place car ``c`` for a new episode; the next kernel call only observes it."""
-        if options:
-            unknown = sorted(set(options) - {"start_s_m", "start_speed_mps"})
-            if unknown:
-                raise UserInputError(f"reset options: unknown key(s) {unknown}; known: "
-                                     "start_s_m, start_speed_mps")
-        opts = options or {}
-        if "start_s_m" in opts:
-            s = _num(opts, "start_s_m")
+        opts = ResetOptions.parse(options)  # an instance passes through unchecked
+        if opts.start_s_m is not None:
+            s = opts.start_s_m
         elif self.random_start:
             s = float(rng.uniform(0.0, self.track.length_m))
         else:
             s = self.track.length_m - DEFAULT_START_BEFORE_LINE_M
-        speed = _num(opts, "start_speed_mps", 0.0, 100.0) if "start_speed_mps" in opts \
-            else self.start_speed
+        speed = self.start_speed if opts.start_speed_mps is None else opts.start_speed_mps
         x, y, h, i = self.start_pose(s)
         set_start(self.state[c], self.car, x, y, h, speed)
         self.state[c, K.ST_IDX] = i  # projection hint: a local search, not a global scan
@@ -357,6 +255,40 @@ class _Batch:
         }
 
 
+class InvalidActionError(gymnasium.error.InvalidAction, ValueError):
+    """An action that is not (steer, throttle, brake) as finite numbers, one row per car."""
+
+
+_ACTION_SHAPE = (3,)
+"""One car's action: (steer, throttle, brake). The vector env takes ``(num_envs, 3)``."""
+
+
+def _as_array(action: Any, shape: tuple[int, ...]) -> np.ndarray:
+    try:
+        return np.asarray(action, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidActionError(
+            f"action: expected finite numbers of shape {shape} (steer, throttle, brake), got "
+            f"{type(action).__name__} {action!r:.80}") from None
+
+
+def _bad_action(action: np.ndarray, shape: tuple[int, ...]) -> InvalidActionError:
+    """The error for a wrong shape or a non-finite value (built only on the failing path)."""
+    per_car = " per car" if len(shape) > 1 else ""
+    text = np.array2string(np.asarray(action), threshold=12)
+    if action.shape != shape:
+        return InvalidActionError(
+            f"action: expected shape {shape} (steer, throttle, brake{per_car}), got shape "
+            f"{action.shape}: {text}")
+    try:
+        bad = ~np.isfinite(np.asarray(action, dtype=np.float64))
+    except (TypeError, ValueError):
+        bad = np.ones(shape, dtype=bool)
+    where = [tuple(int(i) for i in ix) for ix in np.argwhere(bad)[:4]]
+    return InvalidActionError(
+        f"action: every value must be a finite number; not finite at index {where}: {text}")
+
+
 _DOC_TABLE = """
     | Index | Name              | Min | Max | Unit (before normalisation)                      |
     |-------|-------------------|-----|-----|--------------------------------------------------|
@@ -377,8 +309,6 @@ def _render_frame(env: Any):
     if env.render_mode != "rgb_array":
         return None
     if env._renderer is None:
-        from formula_tourney.sim.render import TrackRenderer
-
         env._renderer = TrackRenderer(env.track, env._b.grass_w)
     return env._renderer.frame(env._b.state, env.car)
 
@@ -394,7 +324,8 @@ class FormulaRacingEnv(gymnasium.Env):
 
     ## Action Space
     `Box([-1, 0, 0], [1, 1, 1], float32)`: steer (> 0 turns left, 1 = full lock), throttle,
-    brake. Values outside are clipped.
+    brake. Values outside are clipped; anything but three finite numbers (a scalar, None, NaN,
+    another shape) raises `InvalidActionError` (a `ValueError`).
 
     ## Observation Space
     Flat float32, 29 values (33 with `lac`); names from
@@ -417,8 +348,9 @@ class FormulaRacingEnv(gymnasium.Env):
     Truncated: `max_steps` control steps. `info["termination"]` names the reason.
 
     ## Arguments
-    `gymnasium.make("FormulaRacing-v0", config={{...}}, render_mode="rgb_array")`; `config` is
-    merged over `default_config()` (unknown keys are an error): track (name or Track),
+    `gymnasium.make("FormulaRacing-v0", config={{...}}, render_mode="rgb_array")`; `config` (a
+    dict or a `sim.config.EnvConfig`) is merged over `default_config()` and validated by
+    `EnvConfig`, which documents every key (unknown keys are an error): track (name or Track),
     reference_line ("centre" or offsets per sample), lac, lac_distances_m, control_period_s,
     physics_hz (>= 100), max_steps, terminate_off_track, terminate_backwards, terminate_slow,
     slow_speed_kmh, slow_patience_steps, slow_penalty, damage_weight, random_start,
@@ -431,12 +363,14 @@ class FormulaRacingEnv(gymnasium.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 5}
 
-    def __init__(self, config: Mapping[str, Any] | None = None, render_mode: str | None = None):
+    def __init__(self, config: Mapping[str, Any] | EnvConfig | None = None,
+                 render_mode: str | None = None):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise UserInputError(f"render_mode {render_mode!r}: only 'rgb_array' is supported")
         self.render_mode = render_mode
         self._b = _Batch(1, config)
-        self.config = self._b.config
+        self.config = self._b.config  # plain dict of every key (read as env.unwrapped.config)
+        self.env_config = self._b.env_config  # the validated EnvConfig behind it
         self.track = self._b.track
         self.reference = self._b.reference
         self.car = self._b.car
@@ -452,19 +386,33 @@ class FormulaRacingEnv(gymnasium.Env):
 
     @staticmethod
     def default_config() -> dict[str, Any]:
+        """Every config key with its default (:func:`formula_tourney.sim.config.default_config`)."""
         return default_config()
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         b = self._b
-        b.reset_car(0, self.np_random, options)
+        b.reset_car(0, self.np_random, ResetOptions.parse(options))
         b.run()
         b.integrate[0] = 1
         return self._obs_row.copy(), b.info(0)
 
     def step(self, action):
         b = self._b
-        self._act_row[:] = action
+        row = self._act_row
+        # A cheap check (~0.5 us of a ~7 us step), not action_space.contains: NumPy would
+        # broadcast a scalar into all three controls and turn None into NaN.
+        if type(action) is not np.ndarray:
+            action = _as_array(action, _ACTION_SHAPE)
+        if action.shape != _ACTION_SHAPE:
+            raise _bad_action(action, _ACTION_SHAPE)
+        try:
+            row[:] = action
+        except (TypeError, ValueError):
+            raise _bad_action(action, _ACTION_SHAPE) from None
+        steer, throttle, brake = row.tolist()
+        if steer - steer or throttle - throttle or brake - brake:  # x - x is NaN unless finite
+            raise _bad_action(action, _ACTION_SHAPE)
         b.run()
         out = self._out_row
         lap = out[K.O_LAP_TIME]
@@ -500,7 +448,7 @@ class FormulaRacingVectorEnv(VectorEnv):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 5,
                 "autoreset_mode": AutoresetMode.NEXT_STEP}
 
-    def __init__(self, num_envs: int = 1, config: Mapping[str, Any] | None = None,
+    def __init__(self, num_envs: int = 1, config: Mapping[str, Any] | EnvConfig | None = None,
                  render_mode: str | None = None, threads: int = 1, **kwargs: Any):
         if kwargs:
             raise UserInputError(f"FormulaRacingVectorEnv: unknown argument(s) {sorted(kwargs)}")
@@ -512,6 +460,7 @@ class FormulaRacingVectorEnv(VectorEnv):
         self.num_envs = int(num_envs)
         self._b = _Batch(self.num_envs, config, threads)
         self.config = self._b.config
+        self.env_config = self._b.env_config
         self.track = self._b.track
         self.car = self._b.car
         self.observation_names = self._b.names
@@ -524,14 +473,17 @@ class FormulaRacingVectorEnv(VectorEnv):
         self._needs_reset = np.zeros(self.num_envs, dtype=bool)
         self._renderer = None
         self._mask = np.ones(self.num_envs, dtype=bool)
+        self._action_shape = (self.num_envs, 3)
+        self._finite = np.zeros(self._action_shape, dtype=bool)
 
     def reset(self, *, seed: int | list[int] | None = None, options: dict | None = None):
         if isinstance(seed, list):
             seed = seed[0] if seed else None
         self._np_random, self._np_random_seed = gymnasium.utils.seeding.np_random(seed)
         b = self._b
+        opts = ResetOptions.parse(options)
         for c in range(self.num_envs):
-            b.reset_car(c, self._np_random, options)
+            b.reset_car(c, self._np_random, opts)
         b.run()
         b.integrate[:] = 1
         self._needs_reset[:] = False
@@ -541,7 +493,17 @@ class FormulaRacingVectorEnv(VectorEnv):
         # Lean on purpose: the Python side was ~60-100 us of a 64-car step (~1/3 of it once the
         # kernel was fast); method calls (nonzero, fill) instead of NumPy's wrapper functions.
         b = self._b
-        b.actions[:] = actions
+        if type(actions) is not np.ndarray:
+            actions = _as_array(actions, self._action_shape)
+        if actions.shape != self._action_shape:
+            raise _bad_action(actions, self._action_shape)
+        acts = b.actions
+        try:
+            acts[:] = actions
+        except (TypeError, ValueError):
+            raise _bad_action(actions, self._action_shape) from None
+        if not np.isfinite(acts, out=self._finite).all():
+            raise _bad_action(actions, self._action_shape)
         if self._needs_reset.any():
             b.reset_cars(self._needs_reset.nonzero()[0], self.np_random)
         b.run()

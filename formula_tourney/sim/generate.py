@@ -45,7 +45,7 @@ MAX_CORNER_DEG = 150.0
 
 MAX_ATTEMPTS = 200
 MAX_SEED = 999_999_999
-"""``gen-<seed>`` names take up to 9 digits (``catalog.GENERATED_PATTERN``)."""
+"""Largest seed; ``catalog.check_track_name`` refuses ``gen-<seed>`` names beyond it."""
 
 
 def generate_spec(

@@ -20,6 +20,15 @@ Format (one file per track)::
     radius_m = 200.0
     angle_deg = 180.0             # sign gives the direction: left (counter-clockwise) > 0
     end_radius_m = 150.0          # optional: a spiral, radius linear in turned angle
+    steps = 12                    # optional, with end_radius_m: TORCS' stepped spiral (below)
+
+A spiral without ``steps`` is ours: its radius is linear in the turned angle (built from ~2 m
+sub-arcs), and it is ``angle * (radius + end_radius) / 2`` long. With ``steps = N`` it is the
+spiral TORCS' track loader builds: ``N`` arcs of one common length whose radii step linearly
+*by index* from ``radius_m`` (the first) to ``end_radius_m`` (the last), ``r_i = r0 + i (r1 -
+r0) / (N - 1)``, the common length chosen so that they turn exactly ``angle_deg``:
+``L = |angle| / sum(1 / r_i)`` each, ``N * L`` in all. TORCS imports use it so that their
+geometry, and so their closure, is TORCS' own (:mod:`formula_tourney.sim.torcs`).
 """
 
 from __future__ import annotations
@@ -49,9 +58,22 @@ SPIRAL_STEP_M = 2.0
 OVERLAP_MARGIN_M = 2.0
 """Asphalt of two distant parts of a track must be at least this far apart."""
 
+MAX_TRACK_LENGTH_M = 100_000.0
+"""Longest track accepted (100 km; the Nordschleife is 20.8 km). Sampling at ~1 m costs memory
+and time in proportion, so a segment or a lap longer than this is refused before any array is
+built: a TORCS file with one 1e9 m straight once asked for GiBs."""
+
+MAX_SEGMENTS = 10_000
+"""Most segments in one track (real TORCS tracks have a few hundred)."""
+
+MAX_STEPPED_ARCS = 100_000
+"""Most sub-arcs that the stepped (TORCS) spirals of one track may have in all: each becomes a
+lane object, and a TORCS file can ask for any number (a tiny ``profil steps length``). The
+38 tracks of torcs-data use at most a few thousand."""
+
 TOP_KEYS = ("name", "description", "width_m", "width_left_m", "width_right_m", "segment")
 STRAIGHT_KEYS = ("type", "length_m", "name")
-ARC_KEYS = ("type", "radius_m", "angle_deg", "end_radius_m", "name")
+ARC_KEYS = ("type", "radius_m", "angle_deg", "end_radius_m", "steps", "name")
 SEGMENT_TYPES = ("straight", "arc")
 MIN_WIDTH_M = 3.0
 MAX_WIDTH_M = 60.0
@@ -67,12 +89,18 @@ class SegmentSpec:
     angle_deg: float = 0.0
     end_radius_m: float | None = None
     name: str = ""
+    steps: int | None = None
+    """With ``end_radius_m``: a TORCS stepped spiral of this many arcs (module docstring)."""
 
     @property
     def arc_length_m(self) -> float:
-        """Centreline length; a spiral's radius is linear in angle, so its mean radius is exact."""
+        """Centreline length; our spiral's radius is linear in angle, so its mean radius is exact;
+        a stepped spiral is ``steps`` arcs of the length :func:`stepped_spiral` gives."""
         if self.type == "straight":
             return self.length_m
+        if self.steps is not None:
+            radii, sub_length = stepped_spiral(self)
+            return len(radii) * sub_length
         end = self.radius_m if self.end_radius_m is None else self.end_radius_m
         return abs(math.radians(self.angle_deg)) * 0.5 * (self.radius_m + end)
 
@@ -86,9 +114,23 @@ class SegmentSpec:
             out["angle_deg"] = self.angle_deg
             if self.end_radius_m is not None:
                 out["end_radius_m"] = self.end_radius_m
+            if self.steps is not None:
+                out["steps"] = self.steps
         if self.name:
             out["name"] = self.name
         return out
+
+
+def stepped_spiral(seg: SegmentSpec) -> tuple[list[float], float]:
+    """Radii and common sub-arc length of a stepped (TORCS) spiral: ``steps`` radii linear by
+    index from ``radius_m`` to ``end_radius_m`` (both included), each arc ``|angle| / sum(1/r)``
+    long so that ``sum(length / r_i)`` is exactly the segment's angle."""
+    steps = int(seg.steps or 0)
+    if steps < 2 or seg.end_radius_m is None:
+        raise ValueError("a stepped spiral needs steps >= 2 and an end radius")
+    r0, r1 = seg.radius_m, seg.end_radius_m
+    radii = [r0 + (r1 - r0) * i / (steps - 1) for i in range(steps)]
+    return radii, abs(math.radians(seg.angle_deg)) / math.fsum(1.0 / r for r in radii)
 
 
 @dataclass(frozen=True)
@@ -165,11 +207,65 @@ def parse_spec(
     raw_segments = data.get("segment")
     if not isinstance(raw_segments, list) or not raw_segments:
         raise UserInputError(f"{label}: no [[segment]] tables (a track needs segments)")
+    if len(raw_segments) > MAX_SEGMENTS:
+        raise UserInputError(
+            f"{label}: {len(raw_segments)} segments; at most {MAX_SEGMENTS} are accepted"
+        )
     segments = [
         _segment(raw, i, label, lambda key, i=i: where(key, i), left, right)
         for i, raw in enumerate(raw_segments)
     ]
-    return TrackSpec(name, left, right, segments, description)
+    spec = TrackSpec(name, left, right, segments, description)
+    check_track_size(spec, label, lambda i: f"{where('type', i)}: segment {i + 1}")
+    return spec
+
+
+def check_track_size(spec: TrackSpec, label: str, where=None) -> None:
+    """Refuse a spec whose segments or lap exceed :data:`MAX_TRACK_LENGTH_M` (or that has more
+    than :data:`MAX_SEGMENTS` segments), naming the file and the first segment at fault.
+
+    Runs on the spec alone, before lanes or sample arrays exist. ``where(i)`` names segment
+    ``i`` (0-based) in messages; the default is ``label: segment i+1 ('its name')``.
+    """
+
+    def name(i: int) -> str:
+        if where is not None:
+            return where(i)
+        seg_name = spec.segments[i].name
+        return f"{label}: segment {i + 1}" + (f" ({seg_name!r})" if seg_name else "")
+
+    if len(spec.segments) > MAX_SEGMENTS:
+        raise UserInputError(
+            f"{label}: {len(spec.segments)} segments; at most {MAX_SEGMENTS} are accepted"
+        )
+    stepped = 0
+    for i, seg in enumerate(spec.segments):
+        if seg.steps is None:
+            continue
+        if seg.steps < 2 or seg.end_radius_m is None:
+            raise UserInputError(
+                f"{name(i)}: a stepped spiral needs steps >= 2 and an end radius"
+            )
+        stepped += seg.steps
+        if stepped > MAX_STEPPED_ARCS:
+            raise UserInputError(
+                f"{name(i)}: the stepped spirals have {stepped} sub-arcs by the end of this "
+                f"segment; at most {MAX_STEPPED_ARCS} are accepted"
+            )
+    limit_km = MAX_TRACK_LENGTH_M / 1000.0
+    total = 0.0
+    for i, seg in enumerate(spec.segments):
+        length = seg.arc_length_m
+        if not math.isfinite(length) or length > MAX_TRACK_LENGTH_M:
+            raise UserInputError(
+                f"{name(i)}: {length:.4g} m long; a whole track may be at most {limit_km:g} km"
+            )
+        total += length
+        if total > MAX_TRACK_LENGTH_M:
+            raise UserInputError(
+                f"{name(i)}: the track is {total / 1000.0:.1f} km long by the end of this "
+                f"segment; tracks longer than {limit_km:g} km are refused"
+            )
 
 
 def _segment(
@@ -205,6 +301,22 @@ def _segment(
     end = None
     if "end_radius_m" in raw:
         end = _number(raw, "end_radius_m", f"{where('end_radius_m')}: {head}", low=1e-3, high=1e6)
+    steps = None
+    if "steps" in raw:
+        steps = raw["steps"]
+        if isinstance(steps, bool) or not isinstance(steps, int):
+            raise UserInputError(
+                f"{where('steps')}: {head}: 'steps' must be an integer, got {steps!r}"
+            )
+        if not 2 <= steps <= MAX_STEPPED_ARCS:
+            raise UserInputError(
+                f"{where('steps')}: {head}: 'steps' = {steps} is outside [2, {MAX_STEPPED_ARCS}]"
+            )
+        if end is None:
+            raise UserInputError(
+                f"{where('steps')}: {head}: 'steps' needs 'end_radius_m' (it makes a stepped "
+                "spiral)"
+            )
     inside = left if angle > 0 else right
     tightest = min(radius, end if end is not None else radius)
     if tightest <= inside:
@@ -212,7 +324,8 @@ def _segment(
             f"{where('radius_m')}: {head}: radius {tightest:g} m is not larger than the inside "
             f"half-width {inside:g} m (the inner edge would fold over itself)"
         )
-    return SegmentSpec("arc", radius_m=radius, angle_deg=angle, end_radius_m=end, name=seg_name)
+    return SegmentSpec("arc", radius_m=radius, angle_deg=angle, end_radius_m=end, name=seg_name,
+                       steps=steps)
 
 
 def _number(
@@ -273,6 +386,8 @@ def _toml_value(value: Any) -> str:
     if isinstance(value, str):
         escaped = value.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
         return f'"{escaped}"'
+    if isinstance(value, int) and not isinstance(value, bool):
+        return str(value)  # ``steps``: TOML integer (a float would be refused on reading)
     # repr keeps every digit, so a saved track re-loads bit-identical and closes the same way.
     return repr(float(value))
 
@@ -294,6 +409,8 @@ class _Piece:
 
 def build_lanes(spec: TrackSpec) -> list[_Piece]:
     """Chain highway-env lanes from the origin, heading east; spirals become stepped arcs."""
+    # Local: highway-env (and the gymnasium/pygame stack it pulls in) costs ~0.5 s to import,
+    # which ``tracks list`` and every CLI start would pay otherwise.
     from highway_env.road.lane import CircularLane, StraightLane
 
     x, y, heading = 0.0, 0.0, 0.0
@@ -306,14 +423,18 @@ def build_lanes(spec: TrackSpec) -> list[_Piece]:
             pieces.append(_Piece(lane, seg.length_m, 0.0, k))
             x, y = end
             continue
-        r0 = seg.radius_m
-        r1 = r0 if seg.end_radius_m is None else seg.end_radius_m
-        steps = 1 if r1 == r0 else max(4, math.ceil(seg.arc_length_m / SPIRAL_STEP_M))
         total = math.radians(seg.angle_deg)
-        for j in range(steps):
-            radius = r0 + (r1 - r0) * (j + 0.5) / steps
-            dtheta = total / steps
-            side = 1.0 if dtheta > 0 else -1.0
+        side = 1.0 if total > 0 else -1.0
+        if seg.steps is not None:
+            # TORCS' stepped spiral: radii linear by index, one common length, exact angle.
+            radii, sub_length = stepped_spiral(seg)
+            arcs = [(radius, side * sub_length / radius) for radius in radii]
+        else:
+            r0 = seg.radius_m
+            r1 = r0 if seg.end_radius_m is None else seg.end_radius_m
+            steps = 1 if r1 == r0 else max(4, math.ceil(seg.arc_length_m / SPIRAL_STEP_M))
+            arcs = [(r0 + (r1 - r0) * (j + 0.5) / steps, total / steps) for j in range(steps)]
+        for radius, dtheta in arcs:
             cx = x - side * radius * math.sin(heading)
             cy = y + side * radius * math.cos(heading)
             start_phase = heading - side * math.pi / 2
@@ -336,7 +457,11 @@ def build_track(spec: TrackSpec, label: str, source: str = "") -> Track:
     Samples are placed at a uniform arc-length spacing on the exact lane geometry, and
     curvature comes from the segments (1/R on arcs, 0 on straights), so it is exact rather than a
     noisy finite difference. The residual closure gap (< 1 m) is spread linearly along the lap.
+    Specs over :data:`MAX_TRACK_LENGTH_M` are refused before anything is sampled.
     """
+    if not spec.segments:
+        raise UserInputError(f"{label}: a track needs segments")
+    check_track_size(spec, label)
     pieces = build_lanes(spec)
     starts = np.concatenate([[0.0], np.cumsum([p.length_m for p in pieces])])
     length = float(starts[-1])
@@ -422,7 +547,7 @@ def find_overlap(
     samples must be at least ``reach`` = both half-widths + margin apart. A k-d tree keeps this
     O(n log n): a 6 km track is checked in a few milliseconds.
     """
-    from scipy.spatial import cKDTree
+    from scipy.spatial import cKDTree  # local: scipy is a slow import, only built tracks need it
 
     half = np.maximum(track.width_left_m, track.width_right_m)
     reach = 2.0 * float(half.max()) + margin_m

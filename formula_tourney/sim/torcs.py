@@ -14,9 +14,31 @@ A TORCS track file is a ``<params>`` document; what we read is::
           <attnum name="arc" unit="deg" val="90"/>
         </section>
 
-Like TORCS' own ``trackgen``, numbers without a unit are SI (metres, radians), a turn is
-``arc * (radius + end radius) / 2`` long, and the start line is the start of the first segment.
-Elevation, banking, borders, sides and pits are ignored (the simulator is flat).
+Like TORCS, numbers without a unit are SI (metres, radians) and the start line is the start of
+the first segment. Elevation, banking, borders, sides and pits are ignored (the simulator is flat).
+
+Geometry is built as TORCS' track loader builds it, so that a track closes (or misses) exactly
+where TORCS' does. TORCS cuts every segment into *sub-segments*; for straights and arcs of
+constant radius that changes nothing, but a spiral (``end radius`` differs from ``radius``)
+becomes a chain of constant-radius arcs, and that chain, not an ideal clothoid, is the track:
+
+1. The declared length is ``arc * (radius + end radius) / 2`` (``lg`` for a straight).
+2. The number of sub-segments ``N``: if the segment's ``profil`` is not ``spline`` (the default),
+   ``N = 1``. Otherwise ``N`` is the segment's ``profil steps`` (a number, cut to an integer,
+   default 1); if that is 1, a step length is taken: the segment's ``profil steps length``, else
+   the one in ``Main Track``, else none; with a step length ``h``, ``N = int(length / h) + 1``.
+3. A spiral with ``N >= 2``: the radii step linearly by sub-segment index from ``radius`` (the
+   first) to ``end radius`` (the last), ``r_i = r0 + i (r1 - r0) / (N - 1)``; all sub-segments
+   get one common length, rescaled so that they turn exactly ``arc``: ``L = arc / sum(1/r_i)``.
+   The spiral is then ``N * L`` long, not its declared length; TORCS' lap length is the sum
+   of the sub-segment lengths. We keep it as one segment with ``steps = N``
+   (:mod:`formula_tourney.sim.segments`).
+4. A spiral with ``N = 1`` is one arc of radius ``radius`` and the declared length, so it turns
+   ``arc * (radius + end radius) / (2 radius)``, not ``arc``: TORCS builds it so, and so do we.
+
+A segment cut into fewer than one sub-segment (``profil steps`` 0 or negative, a negative step
+length) would vanish in TORCS; it is refused here, as is a spiral cut into more than
+:data:`~formula_tourney.sim.segments.MAX_STEPPED_ARCS` sub-arcs.
 
 Safety: real files begin with a DOCTYPE that declares *external* entities, e.g.
 ``<!ENTITY default-surfaces SYSTEM "../../../data/tracks/surfaces.xml">``, used in the body as
@@ -33,15 +55,16 @@ import re
 from pathlib import Path
 
 from formula_tourney.errors import UserInputError
-from formula_tourney.safeio import atomic_write_text, check_name
+from formula_tourney.safeio import check_name
 from formula_tourney.sim.segments import (
+    MAX_SEGMENTS,
+    MAX_STEPPED_ARCS,
     MAX_WIDTH_M,
     MIN_WIDTH_M,
     SegmentSpec,
     TrackSpec,
     build_track,
-    parse_spec,
-    spec_to_toml,
+    check_track_size,
 )
 from formula_tourney.sim.track import Track
 
@@ -54,6 +77,7 @@ DEFAULT_WIDTH_M = 15.0
 LENGTH_UNITS = {"": 1.0, "m": 1.0, "ft": 0.3048, "feet": 0.3048, "km": 1000.0, "cm": 0.01,
                 "mm": 0.001, "in": 0.0254, "%": 0.01}
 ANGLE_UNITS = {"": 1.0, "rad": 1.0, "deg": math.pi / 180.0, "%": 0.01}
+COUNT_UNITS = {"": 1.0}
 """Unit factors to SI, as TORCS' GfParm applies them (``%`` divides by 100)."""
 
 PREDEFINED_ENTITIES = {"amp", "lt", "gt", "quot", "apos"}
@@ -86,47 +110,18 @@ def read_torcs_spec(path: str | Path, name: str | None = None) -> TrackSpec:
 def load_torcs_track(path: str | Path, name: str | None = None) -> Track:
     """Build a TORCS file's main track; refused like any track if it misses closure by > 1 m."""
     spec = read_torcs_spec(path, name)
-    return _build(spec, str(path))
+    return build_torcs_spec(spec, str(path))
 
 
-def import_torcs_track(path: str | Path, name: str | None = None, *,
-                       overwrite: bool = False) -> Path:
-    """Convert a TORCS file to our TOML in the user's track folder; returns the written path.
-
-    Everything is checked first: the file parses, the track closes and does not overlap, the
-    TOML we are about to write loads back to the same track, and the name is free (built-in
-    names and ``gen-<seed>`` are reserved because ``load_track`` resolves them first).
-    """
-    from formula_tourney.sim.catalog import BUILTIN_TRACKS, GENERATED_PATTERN, user_tracks_dir
-
-    spec = read_torcs_spec(path, name)
-    if spec.name in BUILTIN_TRACKS or GENERATED_PATTERN.match(spec.name):
-        raise UserInputError(
-            f"{path}: track name {spec.name!r} is reserved (built-in or gen-<seed>); "
-            "pick another with --name"
-        )
-    target = user_tracks_dir() / f"{spec.name}.toml"
-    if target.exists() and not overwrite:
-        raise UserInputError(
-            f"{path}: a user track {spec.name!r} already exists ({target}); use --force to "
-            "replace it or --name to pick another name"
-        )
-    track = _build(spec, str(path))
-    text = spec_to_toml(spec)
-    again = build_track(parse_spec(text, str(target)), str(target))
-    if abs(again.length_m - track.length_m) > 1e-6:  # pragma: no cover - repr round-trips
-        raise RuntimeError(f"TOML round trip changed the length of {spec.name}")
-    return atomic_write_text(target, text)
-
-
-def _build(spec: TrackSpec, label: str) -> Track:
+def build_torcs_spec(spec: TrackSpec, label: str) -> Track:
+    """:func:`segments.build_track` with a hint on closure errors (TORCS leaves gaps open)."""
     try:
         return build_track(spec, label, source=label)
     except UserInputError as err:
         if "does not close" in str(err):
             raise UserInputError(
-                f"{err}; TORCS closes such gaps itself, we refuse tracks that miss by more "
-                "than 1 m (fix the segment lengths or angles)"
+                f"{err}; TORCS links its last segment to the first wherever it ends, we refuse "
+                "tracks that miss by more than 1 m (fix the segment lengths or angles)"
             ) from None
         raise
 
@@ -149,6 +144,7 @@ def parse_xml_safely(raw: bytes, label: str):
     unchanged) to cut the DOCTYPE; the cleaned bytes then go to defusedxml with DTDs forbidden,
     so if the scanner ever missed a DOCTYPE the parser refuses instead of expanding it.
     """
+    # Local: only an import needs the XML parser; keeps the CLI's start (tracks list) fast.
     import defusedxml.ElementTree as SafeET
     from defusedxml import DefusedXmlException
 
@@ -277,6 +273,35 @@ def _num(section, name: str, units: dict[str, float], where: str, default: float
     return value * factor
 
 
+def _sub_segments(sec, length: float, global_step: float, where: str, spiral: bool = False,
+                  ) -> int:
+    """How many sub-segments TORCS cuts a segment of declared ``length`` into (module doc, 2)."""
+    node = _attr(sec, "profil")
+    profil = (node.get("val") or "").strip() if node is not None else "spline"
+    if profil != "spline":
+        return 1
+    given = _num(sec, "profil steps", COUNT_UNITS, where, 1.0)
+    steps = math.trunc(given) if abs(given) < 2.0**53 else given
+    source = f"'profil steps' = {given:g}"
+    if steps == 1:
+        step = _num(sec, "profil steps length", LENGTH_UNITS, where, global_step)
+        if step != 0.0:
+            ratio = length / step
+            source = f"'profil steps length' = {step:g} m over {length:g} m"
+            steps = math.trunc(ratio) + 1 if abs(ratio) < 2.0**53 else ratio
+    if steps < 1:
+        raise UserInputError(
+            f"{where}: {source} cuts the segment into {steps:g} pieces; TORCS would drop it "
+            "(at least 1 is needed)"
+        )
+    if spiral and steps > MAX_STEPPED_ARCS:
+        raise UserInputError(
+            f"{where}: {source} cuts the spiral into {steps:g} arcs; at most "
+            f"{MAX_STEPPED_ARCS} are accepted"
+        )
+    return int(min(steps, 2.0**53))  # only a spiral's count is used, and it is capped above
+
+
 def _spec_from_root(root, label: str, name: str) -> TrackSpec:
     if root.tag != "params":
         raise UserInputError(f"{label}: not a TORCS params file (root element <{root.tag}>)")
@@ -296,6 +321,12 @@ def _spec_from_root(root, label: str, name: str) -> TrackSpec:
     raw_segments = [c for c in segs if c.tag == "section"]
     if not raw_segments:
         raise UserInputError(f"{label}: Track Segments is empty")
+    if len(raw_segments) > MAX_SEGMENTS:
+        raise UserInputError(
+            f"{label}: {len(raw_segments)} segments; at most {MAX_SEGMENTS} are accepted"
+        )
+    # TORCS reads the global step length from Main Track; a segment's own one overrides it.
+    global_step = _num(main, "profil steps length", LENGTH_UNITS, f"{label}: Main Track", 0.0)
     half = width / 2.0
     out: list[SegmentSpec] = []
     for k, sec in enumerate(raw_segments, start=1):
@@ -307,6 +338,7 @@ def _spec_from_root(root, label: str, name: str) -> TrackSpec:
             length = _num(sec, "lg", LENGTH_UNITS, where)
             if length is None or length <= 0:
                 raise UserInputError(f"{where}: a straight needs a positive 'lg'")
+            _sub_segments(sec, length, global_step, where)  # refuses a vanishing segment
             out.append(SegmentSpec("straight", length_m=length, name=seg_name))
         elif kind in ("lft", "rgt"):
             radius = _num(sec, "radius", LENGTH_UNITS, where)
@@ -325,11 +357,26 @@ def _spec_from_root(root, label: str, name: str) -> TrackSpec:
                 )
             sign = 1.0 if kind == "lft" else -1.0
             end_r = None if end is None or abs(end - radius) < 1e-9 else end
-            out.append(SegmentSpec("arc", radius_m=radius, angle_deg=sign * math.degrees(arc),
-                                   end_radius_m=end_r, name=seg_name))
+            declared = arc * (radius + (radius if end_r is None else end_r)) / 2.0
+            steps = _sub_segments(sec, declared, global_step, where, spiral=end_r is not None)
+            if end_r is None:
+                out.append(SegmentSpec("arc", radius_m=radius, angle_deg=sign * math.degrees(arc),
+                                       name=seg_name))
+            elif steps == 1:
+                # TORCS keeps the start radius and the declared length: the angle is not `arc`.
+                out.append(SegmentSpec("arc", radius_m=radius,
+                                       angle_deg=sign * math.degrees(declared / radius),
+                                       name=seg_name))
+            else:
+                out.append(SegmentSpec("arc", radius_m=radius, angle_deg=sign * math.degrees(arc),
+                                       end_radius_m=end_r, steps=steps, name=seg_name))
         else:
             raise UserInputError(
                 f"{where}: 'type' must be str, lft or rgt, got {kind or 'nothing'!r}"
             )
-    return TrackSpec(name=name, width_left_m=half, width_right_m=half, segments=out,
+    spec = TrackSpec(name=name, width_left_m=half, width_right_m=half, segments=out,
                      description=f"imported from TORCS file {Path(label).name}")
+    # Lengths are checked on the spec, before any lane or sample array exists (a 1e9 m
+    # straight once allocated GiBs before it was refused).
+    check_track_size(spec, label)
+    return spec

@@ -1,1 +1,12 @@
-"""tourney."""
+"""Tournaments: declarative files turned into training jobs, run on a pool or Ray, and promoted.
+
+Modules, in the order data flows through them (imports go the same way):
+
+- ``spec``: the tournament file's schema and line-accurate errors; ``tune_spec``: the tune file's.
+- ``plan``: parts -> entrants x setups x seeds -> jobs, each with its ``training.spec.RunSpec``.
+- ``jobs``: the picklable ``Job``; ``runner``: one job in a worker; ``executors``: where jobs run.
+- ``store``: the index (``index.sqlite``); ``outcomes``: a finished folder's metrics;
+  ``promote``: who goes on; ``scheduler``: the parent's loop; ``collect``: results as data.
+- ``api``: ``run_tournament``; ``tune`` (with ``tune_study``, ``tune_worker``): Optuna studies;
+  ``best_params``: ``--write-best``; ``lock``: one run per results folder.
+"""

@@ -1,6 +1,6 @@
 """Where jobs run: a pool of spawned worker processes, or Ray tasks; both report the same events.
 
-The scheduler (``tourney.api``) submits one job per free slot and polls for :class:`Event`s
+The scheduler (``tourney.scheduler``) submits one job per free slot and polls for :class:`Event`s
 (started, progress, done, failed). Both executors run ``tourney.runner.run_job``.
 
 Local pool: long-lived workers (spawned, one torch thread each: two threads in one process
@@ -28,7 +28,10 @@ from multiprocessing.connection import Connection, wait
 from pathlib import Path
 from typing import Any, Literal, Protocol
 
-from formula_tourney.tourney.plan import Job
+from formula_tourney.errors import UserInputError
+from formula_tourney.results.folder import JobFolder
+from formula_tourney.tourney.jobs import Job
+from formula_tourney.tourney.runner import run_job
 
 EventKind = Literal["started", "progress", "done", "failed"]
 THREAD_ENV = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
@@ -59,6 +62,14 @@ class Executor(Protocol):
     def shutdown(self) -> None: ...
 
 
+def default_workers() -> int:
+    """One worker per core this process may use (one torch thread each)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
 def failure_reason(exc: BaseException) -> str:
     """One line for the index: the error and where it was raised (the full trace goes to a file)."""
     name = type(exc).__name__
@@ -74,13 +85,10 @@ def failure_reason(exc: BaseException) -> str:
 def _write_error(job: Job, exc: BaseException) -> None:
     """Keep the full traceback next to the job's partial output (never trusted: no summary)."""
     with contextlib.suppress(OSError):
-        from formula_tourney.safeio import atomic_write_text
-
-        atomic_write_text(Path(job.out_dir) / "error.txt",
-                          "".join(traceback.format_exception(exc)))
+        JobFolder(job.out_dir).write_error("".join(traceback.format_exception(exc)))
 
 
-def _die_with_parent(parent_pid: int) -> None:
+def die_with_parent(parent_pid: int) -> None:
     """Make this worker exit when the parent dies (Linux prctl; ppid poll elsewhere)."""
     if sys.platform.startswith("linux"):
         with contextlib.suppress(Exception):
@@ -102,10 +110,8 @@ def _die_with_parent(parent_pid: int) -> None:
 
 def _worker_main(slot: int, conn: Connection, parent_pid: int) -> None:
     """A worker: receive jobs on the pipe, run each, send events back; ``None`` means stop."""
-    _die_with_parent(parent_pid)
+    die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
-    from formula_tourney.tourney.runner import run_job
-
     pid = os.getpid()
     while True:
         try:
@@ -279,8 +285,6 @@ class LocalExecutor:
 
 def _ray_task(job: Job, queue: Any) -> dict[str, Any]:
     """Body of a Ray task: the same run_job; progress goes through a Ray queue actor."""
-    from formula_tourney.tourney.runner import run_job
-
     pid = os.getpid()
     queue.put(("started", job.job_id, pid, {}))
     started = time.perf_counter()
@@ -316,12 +320,10 @@ class RayExecutor:
         self._ray: Any = None
 
     def start(self) -> None:
-        try:
+        try:  # optional extra, and ray.init alone costs 12-15 s: imported only when used
             import ray
             from ray.util.queue import Queue
         except ImportError:
-            from formula_tourney.errors import UserInputError
-
             raise UserInputError(
                 "--executor ray needs the optional extra: pip install 'formula-tourney[ray]'"
             ) from None
@@ -394,12 +396,8 @@ def make_executor(kind: str, workers: int, address: str | None = None) -> Execut
     """``local`` or ``ray``; anything else is a usage error."""
     if kind == "local":
         if address:
-            from formula_tourney.errors import UserInputError
-
             raise UserInputError("--address is only for --executor ray")
         return LocalExecutor(workers)
     if kind == "ray":
         return RayExecutor(workers, address)
-    from formula_tourney.errors import UserInputError
-
     raise UserInputError(f"unknown executor {kind!r}; allowed values: local, ray")

@@ -13,8 +13,7 @@ import os
 from pathlib import Path
 
 from formula_tourney.errors import UserInputError
-
-LOCK_FILE = ".lock"
+from formula_tourney.results.layout import LOCK_FILE
 
 
 class RunLock:

@@ -1,48 +1,35 @@
 """The plan: a validated tournament turned into jobs (entrant x seed x part) and baseline drives.
 
-A part's jobs are known once its entrants are: at once for declared entrants, after promotion for
-``promoted_from`` parts. Each training job carries the keyword arguments of
-``training.config.TrainConfig``, validated here in the parent so that a bad value fails before
-anything is written, and a hash of them so that a resumed run can tell if the file changed.
+Every training job's run specification is built here, in the parent, by
+``training.spec.build_run_spec`` (the one function ``tune`` and the ``train`` command call too):
+a part's settings and ``[defaults]`` give the schedule, device, threads and env overrides, its
+setup the reference line and LAC, the variant its agent configuration, the tournament's
+``seed_base`` the seed. :meth:`Planner.validate` builds the spec of every job that can exist,
+promoted parts with every variant they could receive, so a bad value is an error at its line
+(``file:line: key``) before anything is written. A part's jobs are known once its entrants
+are: at once for declared entrants, after promotion for ``promoted_from`` parts.
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
+from formula_tourney.agents.variants import get_variant
 from formula_tourney.errors import UserInputError
+from formula_tourney.results.layout import baseline_rel_path, job_rel_path
+from formula_tourney.sim.catalog import check_track_name
+from formula_tourney.tourney.jobs import Job
 from formula_tourney.tourney.spec import (
     Part,
+    Setup,
     Tournament,
     default_family,
     entrant_name,
     error_at,
 )
-from formula_tourney.tourney.store import baseline_rel_path, job_rel_path
-
-JobKind = Literal["train", "baseline"]
-
-
-@dataclass(frozen=True)
-class Job:
-    """One unit of work, sent to a worker process or a Ray task (plain data, picklable)."""
-
-    job_id: str
-    kind: JobKind
-    part: str
-    out_dir: str
-    config: dict[str, Any]
-    meta: dict[str, Any] = field(default_factory=dict)
-    position: int = 0
-
-    @property
-    def config_hash(self) -> str:
-        return config_hash(self.config)
+from formula_tourney.training.spec import SCHEDULE_KEYS, RunSpec, build_run_spec
 
 
 @dataclass
@@ -54,10 +41,8 @@ class PlannedPart:
     variants: list[str] | None
     jobs: list[Job] = field(default_factory=list)
     baselines: list[Job] = field(default_factory=list)
-
-
-def config_hash(config: dict[str, Any]) -> str:
-    return hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    key_track: str = ""
+    """Canonical name of the track the part's lap times and promotion are measured on."""
 
 
 def resolve_variant(spec: Tournament, name: str) -> tuple[str, str, dict[str, Any]]:
@@ -86,226 +71,235 @@ def part_variants(spec: Tournament, part: Part) -> list[str] | None:
     return None
 
 
-def train_kwargs(spec: Tournament, part: Part, variant: str, setup: Any, seed: int) -> dict:
-    """Keyword arguments of TrainConfig for one job; unset settings keep TrainConfig's defaults."""
-    base, _family, overrides = resolve_variant(spec, variant)
-    settings = spec.settings(part)
-    kwargs: dict[str, Any] = {
-        "variant": base,
-        "overrides": {**(settings.get("variant_overrides") or {}), **overrides},
-        "train_tracks": list(part.train_tracks),
-        "reference": setup.reference,
-        "lac": setup.lac,
-        "seed": spec.seed_base + seed,
-        "test_tracks": part.all_test_tracks(),
-    }
-    if part.selection.kind == "general":
-        kwargs["save_test_checkpoints"] = True
-    for key, value in settings.items():
-        if key in ("seeds", "variant_overrides") or value is None:
-            continue
-        kwargs.setdefault(key, value)
-    return kwargs
+def possible_variants(spec: Tournament, part: Part) -> list[str]:
+    """Every variant a part can run: its entrants, or those its source part can promote."""
+    by_name = {p.name: p for p in spec.parts}
+    declared = part_variants(spec, part)
+    while declared is None:  # promotion only comes from earlier parts (tourney.spec checks)
+        part = by_name[str(part.promoted_from)]
+        declared = part_variants(spec, part)
+    return declared
 
 
-def make_jobs(
-    spec: Tournament, part: Part, position: int, variants: list[str], root: Path
-) -> list[Job]:
-    """Jobs of a part for the given variants: variant x setup x seed, in that order."""
-    seeds = spec.settings(part)["seeds"] or 1
-    jobs = []
-    for variant in variants:
-        _base, family, _ = resolve_variant(spec, variant)
-        for setup in part.setups:
-            entrant = entrant_name(variant, setup)
-            for seed in range(seeds):
-                rel = job_rel_path(part.name, entrant, seed)
-                jobs.append(
-                    Job(
-                        job_id=rel,
-                        kind="train",
-                        part=part.name,
-                        out_dir=str(root / rel),
-                        config=train_kwargs(spec, part, variant, setup, seed),
+def spec_settings(settings: dict[str, Any], force_checkpoints: bool = False) -> dict[str, Any]:
+    """``build_run_spec`` keyword arguments from resolved job settings (None = unset)."""
+    schedule = {k: settings[k] for k in SCHEDULE_KEYS if settings.get(k) is not None}
+    if force_checkpoints:
+        schedule["save_test_checkpoints"] = True
+    out: dict[str, Any] = {"schedule": schedule, "env_overrides": settings.get("env_overrides")}
+    for key in ("device", "threads"):
+        if settings.get(key) is not None:
+            out[key] = settings[key]
+    return out
+
+
+class Planner:
+    """Jobs of one tournament file; run specs are built once per part x variant x setup."""
+
+    def __init__(self, spec: Tournament, path: Path, text: str, root: Path) -> None:
+        self.spec = spec
+        self.path = Path(path)
+        self.text = text
+        self.root = Path(root)
+        self.base_dir = self.path.resolve().parent
+        """Relative track paths in the file resolve against the file's folder."""
+        self._tracks: dict[int, tuple[tuple[str, ...], tuple[str, ...]]] = {}
+        self._specs: dict[tuple[int, str, int], RunSpec] = {}
+
+    # ------------------------------------------------------------------ run specifications
+    def tracks(self, index: int) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """Canonical (train, test) track names of part ``index``; errors point at the key."""
+        if index not in self._tracks:
+            part = self.spec.parts[index]
+            found = []
+            for key, names in (("train_tracks", part.train_tracks),
+                               ("test_tracks", part.all_test_tracks())):  # fmt: skip
+                try:
+                    found.append(tuple(check_track_name(n, self.base_dir) for n in names))
+                except UserInputError as err:
+                    raise error_at(self.path, self.text, ("parts", index, key),
+                                   str(err)) from None
+            self._tracks[index] = (found[0], found[1])
+        return self._tracks[index]
+
+    def key_track(self, index: int) -> str:
+        """Where the part's lap times count (``RunSpec.key_track``, the same for all its jobs)."""
+        part = self.spec.parts[index]
+        return self.run_spec(index, possible_variants(self.spec, part)[0], 0).key_track
+
+    def run_spec(self, index: int, variant: str, setup_index: int, seed: int = 0) -> RunSpec:
+        """The run specification of one job (``seed`` counts from 0 within the entrant)."""
+        key = (index, variant, setup_index)
+        if key not in self._specs:
+            self._specs[key] = self._build(index, variant, setup_index)
+        base = self._specs[key]
+        if seed == 0:
+            return base
+        return base.model_copy(update={"seed": self.spec.seed_base + seed})
+
+    def _build(self, index: int, variant: str, setup_index: int) -> RunSpec:
+        part = self.spec.parts[index]
+        setup = part.setups[setup_index]
+        trains, tests = self.tracks(index)
+        base, _family, own = resolve_variant(self.spec, variant)
+        settings = self.spec.settings(part)
+        try:
+            return build_run_spec(
+                variant=base, overrides={**(settings["variant_overrides"] or {}), **own},
+                train_tracks=trains, test_tracks=tests, reference=setup.reference,
+                lac=setup.lac, seed=self.spec.seed_base, track_base_dir=self.base_dir,
+                source=f"{part.name}/{entrant_name(variant, setup)}",
+                **spec_settings(settings, part.selection.kind == "general"),
+            )  # fmt: skip
+        except UserInputError as err:
+            raise error_at(self.path, self.text, self._blame(index, variant),
+                           str(err)) from None
+
+    def _blame(self, index: int, variant: str) -> tuple[Any, ...]:
+        """Where in the file a failing spec comes from: the variant's own overrides, the shared
+        variant_overrides (part or [defaults]), or else the part."""
+        part = self.spec.parts[index]
+        base, _family, own = resolve_variant(self.spec, variant)
+        shared = self.spec.settings(part)["variant_overrides"] or {}
+        try:
+            get_variant(base, own)
+        except UserInputError:
+            return ("variants", variant, "overrides")
+        try:
+            get_variant(base, {**shared, **own})
+        except UserInputError:
+            if part.variant_overrides is not None:
+                return ("parts", index, "variant_overrides")
+            return ("defaults", "variant_overrides")
+        return ("parts", index)
+
+    # ------------------------------------------------------------------ jobs
+    def jobs(self, index: int, variants: list[str]) -> list[Job]:
+        """Jobs of a part for the given variants: variant x setup x seed, in that order."""
+        part = self.spec.parts[index]
+        seeds = self.spec.settings(part)["seeds"] or 1
+        out = []
+        for variant in variants:
+            _base, family, _ = resolve_variant(self.spec, variant)
+            for setup_index, setup in enumerate(part.setups):
+                entrant = entrant_name(variant, setup)
+                for seed in range(seeds):
+                    run = self.run_spec(index, variant, setup_index, seed)
+                    rel = job_rel_path(part.name, entrant, seed)
+                    out.append(Job(
+                        job_id=rel, kind="train", part=part.name, out_dir=str(self.root / rel),
+                        spec=run.to_json(), config_hash=run.digest(), position=index,
                         meta={
                             "study": part.study, "part": part.name, "entrant": entrant,
                             "variant": variant, "family": family, "seed": seed,
                             "reference": setup.reference, "lac": setup.lac,
-                            "train_tracks": list(part.train_tracks), "path": rel,
+                            "train_tracks": list(run.train_tracks), "path": rel,
                             "selection": part.selection.model_dump(),
                         },
-                        position=position,
-                    )
-                )
-    return jobs
+                    ))  # fmt: skip
+        return out
 
-
-def make_baselines(part: Part, position: int, root: Path) -> list[Job]:
-    """One drive per baseline x test track of the part."""
-    out = []
-    for baseline in part.baselines:
-        reference = "genetic" if baseline.bot == "genetic" else baseline.reference
-        for track in part.all_test_tracks():
-            rel = baseline_rel_path(part.name, baseline.bot, reference, track)
-            out.append(
-                Job(
-                    job_id=rel,
-                    kind="baseline",
-                    part=part.name,
-                    out_dir=str(root / rel),
-                    config={"bot": baseline.bot, "reference": reference, "track": track,
-                            "laps": baseline.laps},
+    def baselines(self, index: int) -> list[Job]:
+        """One drive per baseline x test track of the part."""
+        part = self.spec.parts[index]
+        _trains, tests = self.tracks(index)
+        out = []
+        for baseline in part.baselines:
+            reference = "genetic" if baseline.bot == "genetic" else baseline.reference
+            for track in tests:
+                rel = baseline_rel_path(part.name, baseline.bot, reference, track)
+                out.append(Job(
+                    job_id=rel, kind="baseline", part=part.name, out_dir=str(self.root / rel),
+                    spec={"bot": baseline.bot, "reference": reference, "track": track,
+                          "laps": baseline.laps},
                     meta={"part": part.name, "bot": baseline.bot, "reference": reference,
                           "track": track, "path": rel},
-                    position=position,
-                )
-            )
-    return out
+                    position=index,
+                ))  # fmt: skip
+        return out
 
+    def plan(self) -> list[PlannedPart]:
+        """Parts in order with the jobs known now (promoted parts get theirs after promotion)."""
+        planned = []
+        for index, part in enumerate(self.spec.parts):
+            variants = part_variants(self.spec, part)
+            jobs = self.jobs(index, variants) if variants is not None else []
+            planned.append(PlannedPart(part, index, variants, jobs, self.baselines(index),
+                                       self.key_track(index)))
+        return planned
 
-def build_plan(spec: Tournament, root: Path) -> list[PlannedPart]:
-    """Parts in order with the jobs known now (promoted parts get theirs after promotion)."""
-    planned = []
-    for position, part in enumerate(spec.parts):
-        variants = part_variants(spec, part)
-        jobs = make_jobs(spec, part, position, variants, root) if variants is not None else []
-        planned.append(PlannedPart(part, position, variants, jobs,
-                                   make_baselines(part, position, root)))
-    return planned
+    def validate(self) -> int:
+        """Build every job's run specification that can exist; returns how many were built.
 
-
-def validate_plan(spec: Tournament, path: Path, text: str, root: Path) -> None:
-    """Check every job config against TrainConfig and every track name, before any write.
-
-    Promoted parts are checked with every variant they could receive, so a bad override there
-    also fails now rather than hours later.
-    """
-    _check_tracks(spec, path, text)
-    from formula_tourney.agents.variants import get_variant
-
-    for index, part in enumerate(spec.parts):
-        for variant in part_variants(spec, part) or spec.variant_names():
-            base, _family, overrides = resolve_variant(spec, variant)
-            merged = {**(spec.settings(part).get("variant_overrides") or {}), **overrides}
+        Promoted parts are built with every variant their source could promote, so a bad
+        override there fails now rather than hours later. Declared variants that no part runs
+        are checked too (a typo in one is still a typo).
+        """
+        for name in self.spec.variants:
+            base, _family, own = resolve_variant(self.spec, name)
             try:
-                get_variant(base, merged)
+                get_variant(base, own)
             except UserInputError as err:
-                loc: tuple[Any, ...] = ("variants", variant, "overrides")
-                try:
-                    get_variant(base, overrides)
-                except UserInputError:
-                    pass  # the variant's own overrides are wrong
-                else:  # they are fine alone: the shared variant_overrides are to blame
-                    loc = ("parts", index, "variant_overrides")
-                    if part.variant_overrides is None:
-                        loc = ("defaults", "variant_overrides")
-                raise error_at(path, text, loc, str(err)) from None
-    for name in spec.variants:
-        base, _family, overrides = resolve_variant(spec, name)
-        try:
-            get_variant(base, overrides)
-        except UserInputError as err:
-            raise error_at(path, text, ("variants", name, "overrides"), str(err)) from None
-    try:
-        from formula_tourney.training.config import TrainConfig
-    except ImportError:  # pragma: no cover - training area not installed
-        return
-    from pydantic import ValidationError
-
-    names = spec.variant_names()
-    for index, part in enumerate(spec.parts):
-        variants = part_variants(spec, part) or names
-        for job in make_jobs(spec, part, index, variants, root)[:: max(1, _seeds(spec, part))]:
-            try:
-                TrainConfig(**job.config)
-            except ValidationError as err:
-                first = err.errors()[0]
-                key = str(first["loc"][0]) if first["loc"] else "?"
-                loc: tuple[Any, ...]
-                variant = job.meta["variant"]
-                if key in ("overrides", "variant") and variant in spec.variants:
-                    loc = ("variants", variant, "overrides")
-                elif key in ("overrides", "variant"):
-                    loc = ("parts", index, "entrants")
-                else:
-                    loc = ("parts", index, key)
-                    if key not in part.model_fields_set:
-                        loc = ("defaults", key) if key in spec.defaults.model_fields_set else loc
-                detail = "; ".join(
-                    f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}" for e in err.errors()
-                )
-                raise error_at(path, text, loc,
-                               f"invalid training setting for {job.meta['entrant']}: "
-                               f"{detail}") from None
-            except UserInputError as err:
-                raise error_at(path, text, ("parts", index),
-                               f"{job.meta['entrant']}: {err}") from None
+                raise error_at(self.path, self.text, ("variants", name, "overrides"),
+                               str(err)) from None
+        built = 0
+        for index, part in enumerate(self.spec.parts):
+            self.tracks(index)
+            for variant in possible_variants(self.spec, part):
+                for setup_index in range(len(part.setups)):
+                    self.run_spec(index, variant, setup_index)
+                    built += 1
+        return built
 
 
-def _seeds(spec: Tournament, part: Part) -> int:
-    return int(spec.settings(part)["seeds"] or 1)
+    def describe(self, planned: list[PlannedPart]) -> dict[str, Any]:
+        """The plan as data (for --dry-run and --json): parts, entrants, job counts, budgets."""
+        spec = self.spec
+        parts = []
+        total_jobs = 0
+        for item in planned:
+            part = item.part
+            seeds = spec.settings(part)["seeds"] or 1
+            source: dict[str, Any]
+            if item.variants is not None:
+                source = {"entrants": item.variants}
+                n_jobs: int | None = len(item.jobs)
+            else:
+                rule = part.promotion
+                source = {
+                    "promoted_from": part.promoted_from,
+                    "rule": ("best per family, " if rule.best_per_family else "")
+                    + (f"top {rule.top_k} " if rule.top_k else "all ")
+                    + f"by {rule.metric}, finish rate >= {rule.min_finish_rate:g}"
+                    + (", unfinished classified by distance" if rule.unfinished == "by_distance"
+                       else ""),
+                }  # fmt: skip
+                n_jobs = None
+            total_jobs += n_jobs or 0
+            variants = possible_variants(spec, part)
+            run = self.run_spec(item.position, variants[0], 0) if variants else None
+            schedule = run.schedule.model_dump() if run is not None else {}
+            parts.append({
+                "part": part.name,
+                "study": part.study,
+                **source,
+                "setups": [setup_label(s) for s in part.setups],
+                "train_tracks": list(part.train_tracks),
+                "test_tracks": part.all_test_tracks(),
+                "seeds": seeds,
+                **{k: schedule.get(k) for k in ("episodes", "max_steps", "test_every_episodes",
+                                                "test_starts", "test_max_steps")},
+                "env_overrides": run.env.overrides() if run is not None else {},
+                "selection": part.selection.kind,
+                "jobs": n_jobs,
+                "jobs_per_entrant": seeds * len(part.setups),
+                "baselines": [f"{b.spec['bot']}:{b.spec['reference']}@{b.spec['track']}"
+                              for b in item.baselines],
+            })  # fmt: skip
+        return {"tournament": spec.name, "description": spec.description, "parts": parts,
+                "known_jobs": total_jobs}
 
 
-def _check_tracks(spec: Tournament, path: Path, text: str) -> None:
-    try:
-        from formula_tourney.sim.catalog import list_tracks
-    except ImportError:  # pragma: no cover - sim area not installed
-        return
-    known = [str(t["name"]) for t in list_tracks()]
-    for index, part in enumerate(spec.parts):
-        for key in ("train_tracks", "test_tracks"):
-            for name in getattr(part, key) or []:
-                if name in known or re.fullmatch(r"gen-\d+", name):
-                    continue
-                candidate = (path.parent / name) if not Path(name).is_absolute() else Path(name)
-                if candidate.suffix in (".toml", ".xml") and candidate.is_file():
-                    continue
-                raise error_at(path, text, ("parts", index, key),
-                               f"unknown track {name!r}; allowed values: {', '.join(known)}, "
-                               "gen-<seed>, or a path to a .toml/.xml track file")
-
-
-def describe_plan(spec: Tournament, planned: list[PlannedPart]) -> dict[str, Any]:
-    """The plan as data (for --dry-run and --json): parts, entrants, job counts, budgets."""
-    parts = []
-    total_jobs = 0
-    for item in planned:
-        part = item.part
-        settings = spec.settings(part)
-        seeds = settings["seeds"] or 1
-        if item.variants is not None:
-            source = {"entrants": item.variants}
-            n_jobs = len(item.jobs)
-        else:
-            rule = part.promotion
-            source = {
-                "promoted_from": part.promoted_from,
-                "rule": ("best per family, " if rule.best_per_family else "")
-                + (f"top {rule.top_k} " if rule.top_k else "all ")
-                + f"by {rule.metric}, finish rate >= {rule.min_finish_rate:g}"
-                + (", unfinished classified by distance" if rule.unfinished == "by_distance"
-                   else ""),
-            }
-            n_jobs = None
-        total_jobs += n_jobs or 0
-        parts.append({
-            "part": part.name,
-            "study": part.study,
-            **source,
-            "setups": [
-                ("LAC+" if s.lac else "") + s.reference for s in part.setups
-            ],
-            "train_tracks": list(part.train_tracks),
-            "test_tracks": part.all_test_tracks(),
-            "seeds": seeds,
-            "episodes": settings["episodes"],
-            "max_steps": settings["max_steps"],
-            "test_every_episodes": settings["test_every_episodes"],
-            "selection": part.selection.kind,
-            "jobs": n_jobs,
-            "jobs_per_entrant": seeds * len(part.setups),
-            "baselines": [f"{b.config['bot']}:{b.config['reference']}@{b.config['track']}"
-                          for b in item.baselines],
-        })
-    return {"tournament": spec.name, "description": spec.description, "parts": parts,
-            "known_jobs": total_jobs}
+def setup_label(setup: Setup) -> str:
+    """``LAC+recorded``-style label of a setup for the plan view."""
+    return ("LAC+" if setup.lac else "") + setup.reference

@@ -6,23 +6,37 @@ off, episodes, seeds, test schedule), promotion rules, baselines to race and the
 (best lap, or the paper's "general model"). Every field carries a description, so the TOML
 reference in ``docs/tourney.md``, ``--help`` and error messages come from one place.
 
+Job settings are not redefined here: a part's schedule keys, device and threads take their type,
+range and description from ``training.spec`` (``Schedule``, ``RunSpec``), its env overrides are
+``sim.config.EnvSettings``, so a bad value is an error at its line before anything is planned.
+
 Errors are ``UserInputError`` naming ``file:line: key`` and the allowed values. ``tomllib`` keeps
-no line numbers, so :class:`TomlLocator` re-scans the text for each key inside its table.
+no line numbers, so :class:`TomlLocator` scans the text once (linear in its size) and maps each
+key to its line; files over :data:`MAX_SPEC_BYTES` are refused before they are read.
 """
 
 from __future__ import annotations
 
+import functools
 import re
+import stat
 import tomllib
 import typing
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from formula_tourney.agents.variants import VARIANTS
 from formula_tourney.errors import UserInputError
 from formula_tourney.safeio import check_name, read_user_text
+from formula_tourney.sim.config import RUN_OWNED_KEYS, EnvSettings
+from formula_tourney.training.spec import RUN_OWNED_HINTS, RunSpec, Schedule
+
+MAX_SPEC_BYTES = 1024 * 1024
+"""Largest tournament or tune file read (1 MiB; study2.toml is under 4 KiB). A bigger file is
+refused by its size before it is read, so a huge or endless file cannot stall a dry run."""
 
 # The paper's ten variants (section "Algorithms"); agents.variants defines what each one is.
 PAPER_VARIANTS: tuple[str, ...] = tuple(VARIANTS)
@@ -134,37 +148,51 @@ class Selection(_Strict):
     )
 
 
+def _unset_or(model: type[BaseModel], name: str) -> Any:
+    """The type of ``model.<name>`` made optional (None = unset here), keeping the owner's
+    constraints and description, so a range is written once (in ``training.spec``)."""
+    info = model.model_fields[name]
+    inner = Annotated[(info.annotation, *info.metadata)] if info.metadata else info.annotation
+    return Annotated[inner | None, Field(description=info.description)]
+
+
 class JobSettings(_Strict):
     """Training settings of every job in a part; unset values fall back to [defaults], then to
-    training.config.TrainConfig's own defaults."""
+    the run specification's own defaults (``training.spec.Schedule`` and ``RunSpec``)."""
 
     seeds: int | None = Field(None, ge=1, le=1000, description="Independent runs per entrant.")
-    episodes: int | None = Field(None, ge=1, description="Training episodes per run.")
-    max_steps: int | None = Field(
-        None, ge=1, description="Steps per training episode (200 ms each)."
-    )
-    test_every_episodes: int | None = Field(
-        None, ge=1, description="Test (no exploration) after every N training episodes."
-    )
-    test_starts: int | None = Field(
-        None, ge=1, description="Start positions per test (one start is very noisy)."
-    )
-    test_max_steps: int | None = Field(None, ge=1, description="Steps per test episode.")
-    save_test_checkpoints: bool | None = Field(
-        None, description="Keep a checkpoint at every test (needed by the general model)."
-    )
-    device: Literal["auto", "cpu", "cuda"] | None = Field(None, description="Torch device.")
-    threads: int | None = Field(
-        None, ge=1, le=64, description="Torch threads per job (1: updates scale poorly beyond)."
-    )
-    env_overrides: dict[str, Any] | None = Field(
-        None, description="FormulaRacing-v0 config keys to change (e.g. slow_patience_steps)."
+    episodes: _unset_or(Schedule, "episodes") = None
+    max_steps: _unset_or(Schedule, "max_steps") = None
+    random_start: _unset_or(Schedule, "random_start") = None
+    test_every_episodes: _unset_or(Schedule, "test_every_episodes") = None
+    test_starts: _unset_or(Schedule, "test_starts") = None
+    test_max_steps: _unset_or(Schedule, "test_max_steps") = None
+    save_test_checkpoints: _unset_or(Schedule, "save_test_checkpoints") = None
+    device: _unset_or(RunSpec, "device") = None
+    threads: _unset_or(RunSpec, "threads") = None
+    env_overrides: EnvSettings | None = Field(
+        None,
+        description="FormulaRacing-v0 settings to change (keys of sim.config.EnvSettings, e.g. "
+        "slow_patience_steps); the run's own keys (lac, max_steps, ...) are set elsewhere.",
     )
     variant_overrides: dict[str, Any] | None = Field(
         None,
         description="Hyperparameters applied to every variant here (e.g. smaller nets for a "
         "demo); a variant's own overrides win.",
     )
+
+    @field_validator("env_overrides", mode="before")
+    @classmethod
+    def _not_run_owned(cls, value: Any) -> Any:
+        """An env key the run sets itself would silently fight the setup (issue 10, item 2)."""
+        if isinstance(value, Mapping):
+            owned = [k for k in value if k in RUN_OWNED_KEYS]
+            if owned:
+                raise ValueError("; ".join(
+                    f"'{k}' is a run setting, not an env override: set it with "
+                    f"{RUN_OWNED_HINTS.get(k, k)}" for k in owned
+                ))  # fmt: skip
+        return value
 
 
 class Part(JobSettings):
@@ -275,26 +303,36 @@ class Tournament(_Strict):
 
 
 class TomlLocator:
-    """Line numbers of keys in a TOML text, for error messages.
+    """Line numbers of keys in a TOML text, for error messages; built once per text.
 
     Tracks the current table while scanning, counting ``[[array]]`` headers so that the second
     ``[[parts]]`` is path ``("parts", 1)``. Values spanning lines (inline tables, arrays) map all
-    their nested keys to the line of the key that opens them.
+    their nested keys to the line of the key that opens them; the bodies of multi-line strings
+    are skipped. Each line is looked at with ``str`` methods and one anchored character-class
+    match, so the scan is linear in the text (a backtracking pattern here once took minutes on a
+    line of spaces).
     """
 
-    _HEADER = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?\s*(#.*)?$")
-    _KEY = re.compile(r"^\s*([A-Za-z0-9_\-\"'. ]+?)\s*=")
+    _NAME = re.compile(r"[A-Za-z0-9_\-\"'. ]+")
 
     def __init__(self, text: str) -> None:
         self.lines: dict[tuple[Any, ...], int] = {}
         array_counts: dict[tuple[Any, ...], int] = {}
         table: tuple[Any, ...] = ()
-        for number, line in enumerate(text.splitlines(), start=1):
-            header = self._HEADER.match(line)
-            if header and not line.lstrip().startswith("#"):
-                names = tuple(_split_key(header.group(2)))
+        open_string: str | None = None  # delimiter of the multi-line string being skipped
+        for number, raw in enumerate(text.splitlines(), start=1):
+            line = raw.strip()
+            if open_string is not None:
+                if line.count(open_string) % 2 == 1:
+                    open_string = None
+                continue
+            if not line or line.startswith("#"):
+                continue
+            header = self._header(line)
+            if header is not None:
+                is_array, names = header
                 parent = self._resolve(names[:-1], array_counts)
-                if header.group(1) == "[[":
+                if is_array:
                     base = parent + (names[-1],)
                     index = array_counts.get(base, -1) + 1
                     array_counts[base] = index
@@ -304,10 +342,33 @@ class TomlLocator:
                     table = parent + (names[-1],)
                 self.lines[table] = number
                 continue
-            key = self._KEY.match(line)
-            if key and not line.lstrip().startswith("#"):
-                path = table + tuple(_split_key(key.group(1)))
-                self.lines.setdefault(path, number)
+            eq = line.find("=")
+            if eq <= 0:
+                continue
+            key = line[:eq].strip()
+            if self._NAME.fullmatch(key):
+                self.lines.setdefault(table + tuple(_split_key(key)), number)
+            value = line[eq + 1:]
+            for delimiter in ('"""', "'''"):
+                if value.count(delimiter) % 2 == 1:
+                    open_string = delimiter
+                    break
+
+    @classmethod
+    def _header(cls, line: str) -> tuple[bool, tuple[str, ...]] | None:
+        """``(is_array, names)`` of a ``[table]`` or ``[[array]]`` line, else None."""
+        if not line.startswith("["):
+            return None
+        is_array = line.startswith("[[")
+        close = "]]" if is_array else "]"
+        end = line.find(close)
+        if end < 0:
+            return None
+        rest = line[end + len(close):].strip()
+        name = line[2 if is_array else 1:end].strip()
+        if (rest and not rest.startswith("#")) or not name or not cls._NAME.fullmatch(name):
+            return None
+        return is_array, tuple(_split_key(name))
 
     @staticmethod
     def _resolve(names: tuple[str, ...], array_counts: dict[tuple[Any, ...], int]) -> tuple:
@@ -326,6 +387,12 @@ class TomlLocator:
             if line is not None:
                 return line
         return None
+
+
+@functools.lru_cache(maxsize=4)
+def locator_for(text: str) -> TomlLocator:
+    """The locator of ``text``, built once however many errors point into it."""
+    return TomlLocator(text)
 
 
 def _split_key(text: str) -> list[str]:
@@ -370,7 +437,7 @@ def _key_text(loc: tuple[Any, ...]) -> str:
 
 def describe_errors(err: ValidationError, path: Path, text: str) -> str:
     """Turn pydantic errors into ``file:line: key: problem (allowed ...)`` lines."""
-    locator = TomlLocator(text)
+    locator = locator_for(text)
     out = []
     for item in err.errors():
         loc = tuple(item["loc"])
@@ -418,12 +485,29 @@ def _field_at(loc: tuple[Any, ...]) -> Any:
 def load_spec(path: str | Path) -> tuple[Tournament, str]:
     """Read and validate a tournament file; return the spec and its text (for line lookups).
 
-    Only structure is checked here; names of variants, tracks and parts are checked against the
-    rest of the tool by :func:`check_references` and by ``tourney.plan``.
+    Only structure is checked here; names of variants and parts are checked by
+    :func:`check_references`, and every job's run specification (tracks, overrides) is built
+    by ``tourney.plan`` before anything is written.
     """
     path = Path(path)
-    text = read_user_text(path, "tournament")
+    text = read_spec_text(path, "tournament")
     return parse_spec(text, path), text
+
+
+def read_spec_text(path: Path, what: str) -> str:
+    """A tournament or tune file's text; its size is checked (``stat``) before it is read."""
+    try:
+        info = path.stat()
+    except OSError:
+        info = None  # read_user_text words the missing or unreadable file
+    if info is not None and not stat.S_ISREG(info.st_mode):
+        raise UserInputError(f"{path}: the {what} file is not a regular file")
+    if info is not None and info.st_size > MAX_SPEC_BYTES:
+        raise UserInputError(
+            f"{path}: the {what} file is {info.st_size / 1024 / 1024:.1f} MiB; at most "
+            f"{MAX_SPEC_BYTES // 1024} KiB is read (a tournament file describes a plan, not data)"
+        )
+    return read_user_text(path, what)
 
 
 def parse_spec(text: str, path: Path) -> Tournament:
@@ -442,7 +526,7 @@ def parse_spec(text: str, path: Path) -> Tournament:
 
 def error_at(path: Path, text: str, loc: tuple[Any, ...], message: str) -> UserInputError:
     """A UserInputError ``file:line: key: message`` for a key path in the tournament file."""
-    line = TomlLocator(text).line_of(loc)
+    line = locator_for(text).line_of(loc)
     where = f"{path}:{line}" if line else str(path)
     return UserInputError(f"{where}: {_key_text(loc)}: {message}")
 
@@ -450,6 +534,7 @@ def error_at(path: Path, text: str, loc: tuple[Any, ...], message: str) -> UserI
 def check_references(spec: Tournament, path: Path, text: str) -> None:
     """Cross-field rules: unique part names, promotion only from earlier parts, known variants."""
     names = spec.variant_names()
+    known = set(names)
     seen: dict[str, int] = {}
     for index, part in enumerate(spec.parts):
         if part.name in seen:
@@ -466,7 +551,7 @@ def check_references(spec: Tournament, path: Path, text: str) -> None:
                 raise error_at(path, text, ("parts", index, "entrants"),
                                "empty list; name at least one variant or use \"all\"")
             for name in part.entrants:
-                if name not in names:
+                if name not in known:
                     raise error_at(path, text, ("parts", index, "entrants"),
                                    f"unknown variant {name!r}; allowed values: "
                                    f"{', '.join(names)}, \"all\"")

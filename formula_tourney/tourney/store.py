@@ -1,87 +1,39 @@
-"""The results store: the one module that knows the layout of ``results/<tournament>/``.
+"""The results index: ``index.sqlite`` of one tournament, written by the parent process only.
 
-Write side (parent process only): ``index.sqlite`` with tables ``jobs``, ``parts``,
-``baselines``, ``general_models`` and ``meta``. Job folders are written by workers (through
-``training.loop.train`` and ``tourney.runner``), each file atomically, ``summary.json`` last, so a
-folder with ``summary.json`` is a finished job whatever the index says: :meth:`Store.reconcile`
-trusts the files after a crash. Read side: small helpers for the report.
-
-Layout (docs/CONTRACTS.md, "tourney store")::
-
-    <root>/index.sqlite
-    <root>/.lock                                   held by the running ``run`` (tourney.lock)
-    <root>/<part>/<entrant>/seed-<n>/              one training job (training.loop.train)
-    <root>/<part>/_baselines/<bot>-<ref>-<track>/  one baseline drive (result.json, trace.parquet)
-    <root>/optuna/<variant>.journal                tune studies (JournalFileBackend)
+Tables ``jobs``, ``parts``, ``baselines``, ``general_models`` and ``meta``; their schema, the file
+names and the folder layout are ``results.layout``'s. Job folders are written by workers, each
+file atomically, ``summary.json`` last, so a folder with ``summary.json`` is a finished job
+whatever the index says: :meth:`Store.reconcile` trusts the files after a crash. An index that
+is not SQLite, or lacks a column, is a ``CorruptResultError`` naming the file;
+:meth:`Store.move_aside` makes room to rebuild it from the folders (``run --rebuild-index``).
 """
 
 from __future__ import annotations
 
 import json
+import os
 import sqlite3
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-SUMMARY_FILE = "summary.json"
-INDEX_FILE = "index.sqlite"
-BASELINE_DIR = "_baselines"
+import pandas as pd
 
-_SCHEMA = """
-CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS jobs (
-    job_id TEXT PRIMARY KEY, study TEXT, part TEXT, entrant TEXT, variant TEXT, family TEXT,
-    seed INTEGER, reference TEXT, lac INTEGER, train_tracks TEXT,
-    status TEXT NOT NULL DEFAULT 'pending', reason TEXT, attempts INTEGER NOT NULL DEFAULT 0,
-    path TEXT, started_at TEXT, finished_at TEXT, wall_s REAL,
-    position INTEGER, config_hash TEXT, worker_pid INTEGER,
-    best_lap_s REAL, finished INTEGER, damage REAL, train_seconds REAL, test_distance_m REAL
-);
-CREATE TABLE IF NOT EXISTS parts (
-    part TEXT PRIMARY KEY, study TEXT, position INTEGER, status TEXT NOT NULL DEFAULT 'pending',
-    entrants TEXT, promoted TEXT, reason TEXT, ranking TEXT, source TEXT
-);
-CREATE TABLE IF NOT EXISTS baselines (
-    part TEXT, bot TEXT, track TEXT, reference TEXT, best_lap_s REAL, damage REAL,
-    finished INTEGER, reference_limit_s REAL, status TEXT NOT NULL DEFAULT 'pending', reason TEXT,
-    path TEXT, PRIMARY KEY (part, bot, track, reference)
-);
-CREATE TABLE IF NOT EXISTS general_models (
-    part TEXT, job_id TEXT PRIMARY KEY, entrant TEXT, seed INTEGER, episode INTEGER,
-    checkpoint TEXT, train_track TEXT, train_lap_s REAL, laps TEXT, chosen INTEGER
-);
-"""
+from formula_tourney.results.folder import CorruptResultError, JobFolder
+from formula_tourney.results.layout import INDEX_FILE, INDEX_SCHEMA, INDEX_TABLES, JOB_TABLES
 
-JOB_STATUSES = ("pending", "running", "done", "failed")
+JobMetrics = Callable[[Path, str | None], Mapping[str, Any]]
+"""Reads a finished job folder (and the config hash the index expects of it) into the index's
+numbers (``tourney.outcomes.job_metrics``)."""
+
+REBUILD_HINT = "run again with --rebuild-index to move it aside and rebuild it from the job folders"
 
 
 def now_iso() -> str:
     """UTC timestamp with seconds, as stored in started_at/finished_at."""
     return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
-
-
-def job_rel_path(part: str, entrant: str, seed: int) -> str:
-    """Job folder relative to the tournament root; equal to the job id."""
-    return f"{part}/{entrant}/seed-{seed}"
-
-
-def baseline_rel_path(part: str, bot: str, reference: str, track: str) -> str:
-    """Baseline folder relative to the tournament root."""
-    return f"{part}/{BASELINE_DIR}/{bot}-{reference}-{track}"
-
-
-def is_finished(job_dir: Path) -> bool:
-    """A job folder is finished when its summary.json (written last) exists and parses."""
-    path = job_dir / SUMMARY_FILE
-    if not path.is_file():
-        return False
-    try:
-        json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return False
-    return True
 
 
 class Store:
@@ -104,14 +56,62 @@ class Store:
     def db(self) -> sqlite3.Connection:
         if self._db is None:
             self.root.mkdir(parents=True, exist_ok=True)
-            # WAL: the report can read while the parent writes; synchronous=NORMAL is still
-            # crash-safe for committed transactions in WAL mode (only the last may be lost).
-            self._db = sqlite3.connect(self.index_path, timeout=30, isolation_level=None)
-            self._db.row_factory = sqlite3.Row
-            self._db.execute("PRAGMA journal_mode=WAL")
-            self._db.execute("PRAGMA synchronous=NORMAL")
-            self._db.executescript(_SCHEMA)
+            db = sqlite3.connect(self.index_path, timeout=30, isolation_level=None)
+            db.row_factory = sqlite3.Row
+            try:
+                # WAL: the report can read while the parent writes; synchronous=NORMAL is still
+                # crash-safe for committed transactions in WAL mode (only the last may be lost).
+                db.execute("PRAGMA journal_mode=WAL")
+                db.execute("PRAGMA synchronous=NORMAL")
+                self._check_columns(db)  # before the schema script adds to a foreign file
+                db.executescript(INDEX_SCHEMA)
+            except sqlite3.DatabaseError as err:
+                db.close()
+                raise self._corrupt(err) from None
+            except CorruptResultError:
+                db.close()
+                raise
+            self._db = db
         return self._db
+
+    def _check_columns(self, db: sqlite3.Connection) -> None:
+        for table, columns in INDEX_TABLES.items():
+            have = {row[1] for row in db.execute(f"PRAGMA table_info({table})")}
+            missing = [c for c in columns if c not in have]
+            if have and missing:
+                raise CorruptResultError(
+                    f"{self.index_path}: not a results index of this version (table {table} "
+                    f"lacks {', '.join(missing)}); {REBUILD_HINT}"
+                )
+
+    def _corrupt(self, err: sqlite3.DatabaseError) -> CorruptResultError:
+        return CorruptResultError(f"{self.index_path}: cannot read the results index ({err}); "
+                                  f"{REBUILD_HINT}")
+
+    def check(self) -> None:
+        """Open the index now: CorruptResultError naming it when it is not a readable index."""
+        _ = self.db
+
+    def move_aside(self) -> Path | None:
+        """Rename the index (and its WAL files) out of the way so that the next open rebuilds it
+        from the job folders; ``index.sqlite.corrupt`` when it cannot be read, else
+        ``index.sqlite.old``. Returns the new path, None when there was no index."""
+        self.close()
+        if not self.index_path.exists():
+            return None
+        try:
+            self.check()
+            suffix = ".old"
+        except CorruptResultError:
+            suffix = ".corrupt"
+        self.close()
+        target = self.index_path.with_name(self.index_path.name + suffix)
+        for extra in ("-wal", "-shm"):  # a stale WAL must never be replayed into the new index
+            side = self.index_path.with_name(self.index_path.name + extra)
+            if side.exists():
+                os.replace(side, target.with_name(target.name + extra))
+        os.replace(self.index_path, target)
+        return target
 
     def close(self) -> None:
         if self._db is not None:
@@ -121,17 +121,29 @@ class Store:
     @contextmanager
     def transaction(self) -> Iterator[sqlite3.Connection]:
         db = self.db
-        db.execute("BEGIN IMMEDIATE")
         try:
-            yield db
-        except BaseException:
-            db.execute("ROLLBACK")
-            raise
-        db.execute("COMMIT")
+            db.execute("BEGIN IMMEDIATE")
+            try:
+                yield db
+            except BaseException:
+                db.execute("ROLLBACK")
+                raise
+            db.execute("COMMIT")
+        except sqlite3.DatabaseError as err:
+            if isinstance(err, sqlite3.OperationalError) and "locked" in str(err):
+                raise
+            raise self._corrupt(err) from None
+
+    def _query(self, sql: str, args: tuple[Any, ...] = ()) -> list[sqlite3.Row]:
+        """Rows of a read; a damaged page is a CorruptResultError naming the index."""
+        try:
+            return self.db.execute(sql, args).fetchall()
+        except sqlite3.DatabaseError as err:
+            raise self._corrupt(err) from None
 
     def get_meta(self, key: str) -> str | None:
-        row = self.db.execute("SELECT value FROM meta WHERE key=?", (key,)).fetchone()
-        return None if row is None else str(row[0])
+        rows = self._query("SELECT value FROM meta WHERE key=?", (key,))
+        return None if not rows else str(rows[0][0])
 
     def set_meta(self, key: str, value: str) -> None:
         with self.transaction() as db:
@@ -148,8 +160,8 @@ class Store:
             )
 
     def part(self, part: str) -> dict[str, Any] | None:
-        row = self.db.execute("SELECT * FROM parts WHERE part=?", (part,)).fetchone()
-        return None if row is None else _decode_part(dict(row))
+        rows = self._query("SELECT * FROM parts WHERE part=?", (part,))
+        return None if not rows else _decode_part(dict(rows[0]))
 
     def set_part(self, part: str, **values: Any) -> None:
         """Update columns of a part; lists and dicts are stored as JSON."""
@@ -187,17 +199,29 @@ class Store:
 
     # ------------------------------------------------------------------ job lifecycle
     def job(self, job_id: str) -> dict[str, Any] | None:
-        row = self.db.execute("SELECT * FROM jobs WHERE job_id=?", (job_id,)).fetchone()
-        return None if row is None else dict(row)
+        rows = self._query("SELECT * FROM jobs WHERE job_id=?", (job_id,))
+        return None if not rows else dict(rows[0])
 
     def job_rows(self, part: str | None = None) -> list[dict[str, Any]]:
         if part is None:
-            rows = self.db.execute("SELECT * FROM jobs ORDER BY position, job_id").fetchall()
+            rows = self._query("SELECT * FROM jobs ORDER BY position, job_id")
         else:
-            rows = self.db.execute(
-                "SELECT * FROM jobs WHERE part=? ORDER BY position, job_id", (part,)
-            ).fetchall()
+            rows = self._query("SELECT * FROM jobs WHERE part=? ORDER BY position, job_id", (part,))
         return [dict(r) for r in rows]
+
+    def drop_jobs_except(self, part: str, keep: Iterable[str]) -> int:
+        """Forget a part's jobs that its (re-computed) entrants no longer include; their folders
+        stay on disk and are picked up again if those entrants come back. Returns how many."""
+        keep = set(keep)
+        gone = [r["job_id"] for r in self.job_rows(part) if r["job_id"] not in keep]
+        with self.transaction() as db:
+            db.executemany("DELETE FROM jobs WHERE job_id=?", [(j,) for j in gone])
+            db.executemany("DELETE FROM general_models WHERE job_id=?", [(j,) for j in gone])
+        return len(gone)
+
+    def set_worker_pid(self, job_id: str, pid: int) -> None:
+        with self.transaction() as db:
+            db.execute("UPDATE jobs SET worker_pid=? WHERE job_id=?", (pid, job_id))
 
     def mark_running(self, job_id: str, worker_pid: int | None) -> None:
         with self.transaction() as db:
@@ -247,7 +271,7 @@ class Store:
         if part is not None:
             sql += " WHERE part=?"
             args = (part,)
-        return [dict(r) for r in self.db.execute(sql + " ORDER BY part, bot, track", args)]
+        return [dict(r) for r in self._query(sql + " ORDER BY part, bot, track", args)]
 
     def set_general_models(self, part: str, rows: list[dict[str, Any]]) -> None:
         with self.transaction() as db:
@@ -263,22 +287,19 @@ class Store:
                     ),
                 )
 
-    def reconcile(self) -> dict[str, int]:
+    def reconcile(self, job_metrics: JobMetrics) -> dict[str, int]:
         """After a crash or kill -9 of the parent: trust the job folders over the index.
 
-        A folder with ``summary.json`` is done (the parent may have died before recording it);
-        a 'running' job without one was interrupted and goes back to 'pending'. Returns counts.
+        A folder with ``summary.json`` is done (the parent may have died before recording it;
+        ``job_metrics`` reads its numbers); a 'running' job without one was interrupted and goes
+        back to 'pending'. A finished folder whose files cannot be read is a CorruptResultError
+        naming the file. Returns counts.
         """
         fixed = {"recovered_done": 0, "requeued": 0}
         for row in self.job_rows():
             if row["status"] == "done":
                 continue
-            job_dir = self.root / row["path"]
-            if is_finished(job_dir):
-                from formula_tourney.tourney.runner import job_metrics
-
-                train_track = json.loads(row["train_tracks"])[0]
-                self.mark_done(row["job_id"], job_metrics(job_dir, train_track), None)
+            if self.recover(row["job_id"], job_metrics):
                 fixed["recovered_done"] += 1
             elif row["status"] == "running":
                 self.mark_pending(row["job_id"])
@@ -288,32 +309,38 @@ class Store:
             db.execute("UPDATE parts SET status='pending' WHERE status='running'")
         return fixed
 
-    # ------------------------------------------------------------------ read helpers (report)
-    def jobs(self) -> Any:
-        """All jobs as a DataFrame (train_tracks decoded to lists, lac as bool)."""
-        import pandas as pd
+    def recover(self, job_id: str, job_metrics: JobMetrics) -> bool:
+        """Mark a job done from its folder if that folder is finished; whether it was."""
+        row = self.job(job_id) or {}
+        job_dir = self.root / (row.get("path") or job_id)
+        if not JobFolder(job_dir).is_finished():
+            return False
+        try:
+            metrics = job_metrics(job_dir, row.get("config_hash"))
+        except CorruptResultError as err:
+            raise CorruptResultError(f"{err}; remove the job folder {job_dir} to run that job "
+                                     "again") from None
+        self.mark_done(job_id, dict(metrics), None)
+        return True
 
+    # ------------------------------------------------------------------ read helpers (report)
+    def jobs(self) -> pd.DataFrame:
+        """All jobs as a DataFrame (train_tracks decoded to lists, lac as bool)."""
         frame = pd.DataFrame(self.job_rows())
         if not frame.empty:
             frame["train_tracks"] = frame["train_tracks"].map(json.loads)
             frame["lac"] = frame["lac"].astype(bool)
         return frame
 
-    def parts(self) -> Any:
-        import pandas as pd
-
-        rows = self.db.execute("SELECT * FROM parts ORDER BY position").fetchall()
+    def parts(self) -> pd.DataFrame:
+        rows = self._query("SELECT * FROM parts ORDER BY position")
         return pd.DataFrame([_decode_part(dict(r)) for r in rows])
 
-    def baselines(self) -> Any:
-        import pandas as pd
-
+    def baselines(self) -> pd.DataFrame:
         return pd.DataFrame(self.baseline_rows())
 
-    def general_models(self) -> Any:
-        import pandas as pd
-
-        rows = [dict(r) for r in self.db.execute("SELECT * FROM general_models ORDER BY job_id")]
+    def general_models(self) -> pd.DataFrame:
+        rows = [dict(r) for r in self._query("SELECT * FROM general_models ORDER BY job_id")]
         for row in rows:
             row["laps"] = json.loads(row["laps"])
             row["chosen"] = bool(row["chosen"])
@@ -323,14 +350,12 @@ class Store:
         row = self.job(job_id)
         return self.root / (row["path"] if row else job_id)
 
-    def read_job_table(self, job_id: str, table: str) -> Any:
-        """One of a job's tables: 'tests', 'episodes' or 'laps' (an empty frame if absent)."""
-        import pandas as pd
-
-        if table not in ("tests", "episodes", "laps"):
-            raise ValueError(f"unknown job table {table!r}; allowed: tests, episodes, laps")
-        path = self.job_dir(job_id) / f"{table}.parquet"
-        return pd.read_parquet(path) if path.is_file() else pd.DataFrame()
+    def read_job_table(self, job_id: str, table: str) -> pd.DataFrame:
+        """One of a job's tables (``results.layout.JOB_TABLES``: tests, episodes, laps); an
+        empty frame with its columns when the job has not written it."""
+        if table not in JOB_TABLES:
+            raise ValueError(f"unknown job table {table!r}; allowed: {', '.join(JOB_TABLES)}")
+        return JobFolder(self.job_dir(job_id)).table(table)
 
 
 def _decode_part(row: dict[str, Any]) -> dict[str, Any]:

@@ -9,6 +9,8 @@ is kept for plots.
 from __future__ import annotations
 
 import math
+import os
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -17,11 +19,10 @@ import pandas as pd
 
 from formula_tourney.agents.ddpg import DDPGAgent
 from formula_tourney.agents.replay import ObservationWindow
-
-TRACE_COLUMNS = (
-    "time_s", "distance_m", "s_m", "lateral_m", "x_m", "y_m", "speed_kmh", "steer", "throttle",
-    "brake",
-)  # fmt: skip
+from formula_tourney.errors import UserInputError
+from formula_tourney.results.layout import TRACE_COLUMNS
+from formula_tourney.training.checkpoint import load_run_checkpoint
+from formula_tourney.training.envs import RunEnvs
 
 
 @dataclass
@@ -171,41 +172,24 @@ def evaluate_checkpoint(
 ) -> dict[str, Any]:
     """Drive a saved agent greedily on ``track`` from ``starts`` starts; the CLI's ``eval``.
 
-    The env is configured as in training (reference line, LAC, env overrides from the
-    checkpoint's train config), since the observation depends on them.
+    The env is built from the checkpoint's run spec (reference line, LAC, env settings), as in
+    training, since the observation depends on them; ``reference`` replaces the line kind.
     """
-    import time
-
-    from formula_tourney.agents.ddpg import load_checkpoint
-    from formula_tourney.training.config import TrainConfig
-    from formula_tourney.training.loop import load_tracks, make_env, reference_for
-
     t0 = time.perf_counter()
-    agent, extra = load_checkpoint(checkpoint, device=device)
-    train_cfg = TrainConfig.parse(extra.get("train_config", {}), f"checkpoint {checkpoint}")
-    ref_kind = reference or train_cfg.reference
-    tr = load_tracks([track])[track]
-    env = make_env(
-        tr, reference_for(tr, ref_kind, train_cfg.env_overrides.get("car")), train_cfg.lac,
-        max_steps, False, train_cfg.env_overrides,
-    )  # fmt: skip
-    obs_dim = int(np.prod(env.observation_space.shape))
-    if obs_dim != agent.obs_dim:
-        from formula_tourney.errors import UserInputError
-
-        raise UserInputError(
-            f"checkpoint {checkpoint} expects {agent.obs_dim} observations, the env gives {obs_dim}"
-        )
+    agent, spec, _extra = load_run_checkpoint(checkpoint, device=device)
+    envs = RunEnvs(spec, extra_tracks=[track], reference=reference)
+    env = envs.make(track, test=True, max_steps=max_steps)
+    check_observation_size(env, agent, checkpoint)
     drives = [
         run_test_episode(agent, env, track, s0, seed=k)
-        for k, s0 in enumerate(start_positions(tr.length_m, starts))
+        for k, s0 in enumerate(start_positions(envs.tracks[track].length_m, starts))
     ]
     env.close()
     best = min((d.best_lap_s for d in drives if math.isfinite(d.best_lap_s)), default=math.nan)
     return {
         "checkpoint": str(checkpoint),
         "track": track,
-        "reference": ref_kind,
+        "reference": envs.reference,
         "best_lap_s": None if math.isnan(best) else best,
         "laps": sum(d.laps for d in drives),
         "damage": sum(d.damage for d in drives),
@@ -221,3 +205,14 @@ def evaluate_checkpoint(
             for d in drives
         ],
     }  # fmt: skip
+
+
+def check_observation_size(env: Any, agent: DDPGAgent, checkpoint: str | os.PathLike) -> None:
+    """A checkpoint's actor must fit the env's observation (LAC on in one and off in the other
+    would otherwise fail deep inside torch)."""
+    obs_dim = int(np.prod(env.observation_space.shape))
+    if obs_dim != agent.obs_dim:
+        raise UserInputError(
+            f"checkpoint {checkpoint} expects {agent.obs_dim} observations, the env gives "
+            f"{obs_dim} (LAC or the LAC distances differ?)"
+        )

@@ -1,24 +1,36 @@
 """One training run: env + DDPG variant + periodic greedy tests, written as a job folder.
 
-The folder layout is the seam the tournament builds on (docs/CONTRACTS.md, "training (one run)"):
-``config.json`` first, tables and checkpoints as they come, ``summary.json`` last (its presence
-means finished). Every file is written atomically, so a crash never leaves a file a resume trusts.
+The run is fully described by its :class:`~formula_tourney.training.spec.RunSpec`, built and
+validated by the caller; nothing here re-defaults or re-checks a setting. Files go through
+``results.folder.JobFolder`` (the one owner of the layout): ``config.json`` first, tables and
+checkpoints as they come, ``summary.json`` last (its presence means finished).
 """
 
 from __future__ import annotations
 
 import math
-import re
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from torch.utils.tensorboard import SummaryWriter
 
-from formula_tourney.errors import UserInputError
-from formula_tourney.safeio import atomic_write_json, atomic_write_parquet
-from formula_tourney.training.config import TrainConfig
+from formula_tourney.agents.ddpg import DDPGAgent, configure_torch, save_checkpoint
+from formula_tourney.agents.noise import BrakeExplorationNoise, linear_epsilon
+from formula_tourney.agents.replay import ObservationWindow, make_buffer
+from formula_tourney.results.folder import JobFolder
+from formula_tourney.results.layout import BEST_CHECKPOINT, LAST_CHECKPOINT
+from formula_tourney.results.metrics import model_clean_lap_s
+from formula_tourney.training.envs import RunEnvs
+from formula_tourney.training.evaluate import (
+    laps_rows,
+    run_test_episode,
+    start_positions,
+    tests_row,
+)
+from formula_tourney.training.spec import RunSpec
 
 Progress = Callable[[dict[str, Any]], Any]
 
@@ -27,114 +39,36 @@ class DivergedError(RuntimeError):
     """A loss became NaN or infinite: the run is unusable and is reported as failed."""
 
 
-def _trace_name(name: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.+-]", "_", name)[:100] or "track"
-
-
 def _nan_to_none(x: float) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
 
 
-def load_tracks(names: list[str]) -> dict[str, Any]:
-    """Load each named track once (unknown names raise UserInputError listing the known ones)."""
-    try:
-        from formula_tourney.sim.catalog import load_track
-    except ImportError as err:
-        raise UserInputError(
-            f"track catalog (formula_tourney.sim.catalog) unavailable: {err}"
-        ) from None
-    return {name: load_track(name) for name in dict.fromkeys(names)}
-
-
-def reference_for(track: Any, kind: str, car_overrides: dict[str, Any] | None) -> Any:
-    """The env's ``reference_line``: "centre", or the offsets of the recorded/mincurv line."""
-    if kind == "centre":
-        return "centre"
-    try:
-        from formula_tourney.lines.registry import reference_offsets
-    except ImportError as err:  # the lines area is not installed in this checkout
-        raise UserInputError(
-            f"reference {kind!r} needs formula_tourney.lines.registry.reference_offsets, "
-            f"which is unavailable ({err}); use --reference centre"
-        ) from None
-    from formula_tourney.sim.car_params import CarParams
-
-    car = CarParams(**(car_overrides or {}))
-    return np.asarray(reference_offsets(track, kind, car), dtype=np.float64)
-
-
-def make_env(
-    track: Any,
-    reference: Any,
-    lac: bool,
-    max_steps: int,
-    random_start: bool,
-    env_overrides: dict[str, Any],
-) -> Any:
-    """A FormulaRacing-v0 env for one track (config keys per docs/CONTRACTS.md)."""
-    import gymnasium
-
-    import formula_tourney  # noqa: F401  (registers FormulaRacing-v0)
-
-    config = {
-        "track": track,
-        "reference_line": reference,
-        "lac": lac,
-        "max_steps": max_steps,
-        "random_start": random_start,
-        **env_overrides,
-    }
-    try:
-        return gymnasium.make("FormulaRacing-v0", config=config, disable_env_checker=True)
-    except ModuleNotFoundError as err:
-        raise RuntimeError(f"simulator formula_tourney.sim.env unavailable: {err}") from err
-
-
 def train(
-    cfg: TrainConfig, out_dir: str | Path, progress: Progress | None = None
+    spec: RunSpec, out_dir: str | Path, progress: Progress | None = None
 ) -> dict[str, Any]:
-    """Train ``cfg`` and write its job folder under ``out_dir``; returns the summary.
+    """Train ``spec`` and write its job folder under ``out_dir``; returns the summary.
 
     ``progress(dict(episode=, episodes=, best_lap_s=, env_steps=, updates=, seconds=))`` is called
     after each episode; if it returns ``False`` the run stops early (time budgets, benchmarks) and
     still writes its summary. Raises DivergedError on NaN losses.
     """
-    from formula_tourney.agents.ddpg import DDPGAgent, configure_torch, save_checkpoint
-    from formula_tourney.agents.noise import BrakeExplorationNoise, linear_epsilon
-    from formula_tourney.agents.replay import ObservationWindow, make_buffer
-    from formula_tourney.agents.variants import get_variant
-    from formula_tourney.training.evaluate import (
-        laps_rows,
-        run_test_episode,
-        start_positions,
-        tests_row,
-    )
-
-    # --- validate everything before writing anything ----------------------------------------
-    agent_cfg = get_variant(cfg.variant, cfg.overrides)
-    tracks = load_tracks(cfg.train_tracks + cfg.effective_test_tracks)
-    car_overrides = cfg.env_overrides.get("car")
-    references = {n: reference_for(t, cfg.reference, car_overrides) for n, t in tracks.items()}
-    out = Path(out_dir)
+    agent_cfg = spec.agent
+    schedule = spec.schedule
+    envs = RunEnvs(spec)
+    folder = JobFolder(out_dir)
+    out = folder.path
 
     # --- seeding: one block ------------------------------------------------------------------
-    configure_torch(cfg.threads)
-    env_seq, noise_seq, buf_seq = np.random.SeedSequence(cfg.seed).spawn(3)
+    configure_torch(spec.threads)
+    env_seq, noise_seq, buf_seq = np.random.SeedSequence(spec.seed).spawn(3)
     rng = np.random.default_rng(env_seq)
 
-    def env_for(name: str, test: bool) -> Any:
-        return make_env(
-            tracks[name], references[name], cfg.lac,
-            cfg.test_max_steps if test else cfg.max_steps,
-            False if test else cfg.random_start, cfg.env_overrides,
-        )  # fmt: skip
-
-    train_envs = {name: env_for(name, test=False) for name in dict.fromkeys(cfg.train_tracks)}
+    train_envs = {name: envs.make(name, test=False) for name in dict.fromkeys(spec.train_tracks)}
     test_envs: dict[str, Any] = {}
     first_env = next(iter(train_envs.values()))
     obs_dim = int(np.prod(first_env.observation_space.shape))
     action_dim = int(np.prod(first_env.action_space.shape))
-    agent = DDPGAgent(agent_cfg, obs_dim, action_dim, device=cfg.device, seed=cfg.seed)
+    agent = DDPGAgent(agent_cfg, obs_dim, action_dim, device=spec.device, seed=spec.seed)
     buffer = make_buffer(
         agent_cfg.buffer_size, obs_dim, action_dim, prioritized=agent_cfg.prioritized,
         gamma=agent_cfg.gamma, n_step=agent_cfg.n_step, window=agent_cfg.window,
@@ -150,19 +84,15 @@ def train(
     window = ObservationWindow(agent_cfg.window)
 
     out.mkdir(parents=True, exist_ok=True)
-    cfg_json = cfg.model_dump(mode="json")
-    atomic_write_json(out / "config.json", cfg_json)
-    from torch.utils.tensorboard import SummaryWriter
-
-    writer = SummaryWriter(str(out / "tb"))
+    spec_json = spec.to_json()
+    folder.write_config(spec_json)
+    writer = SummaryWriter(str(folder.tb_dir))
 
     episodes_rows: list[dict[str, Any]] = []
     test_table: list[dict[str, Any]] = []
     lap_table: list[dict[str, Any]] = []
-    best_traces: dict[str, tuple[float, Any]] = {}
-    key_track = cfg.train_tracks[0]
-    if key_track not in cfg.effective_test_tracks:
-        key_track = cfg.effective_test_tracks[0]
+    best_traces: dict[str, float] = {}
+    key_track = spec.key_track
     best_key_lap = math.inf
     env_steps = 0
     update_credit = 0.0
@@ -172,59 +102,51 @@ def train(
     def run_tests() -> None:
         nonlocal best_key_lap
         ckpt_rel = ""
-        if cfg.save_test_checkpoints:
-            ckpt_rel = f"checkpoints/ep-{episode}.pt"
+        if schedule.save_test_checkpoints:
+            ckpt_rel = folder.checkpoint_rel(f"ep-{episode}.pt")
             save_checkpoint(
-                agent, out / ckpt_rel, extra={"episode": episode, "train_config": cfg_json}
+                agent, folder.path / ckpt_rel, extra={"episode": episode, "run_spec": spec_json}
             )
-        for name in cfg.effective_test_tracks:
-            env = test_envs.get(name) or test_envs.setdefault(name, env_for(name, test=True))
-            starts = start_positions(tracks[name].length_m, cfg.test_starts)
-            best_here = math.inf
-            for k, s0 in enumerate(starts):
-                drive = run_test_episode(agent, env, name, s0, seed=cfg.seed * 1000 + k)
+        for name in spec.test_tracks:
+            env = test_envs.get(name) or test_envs.setdefault(name, envs.make(name, test=True))
+            starts = start_positions(envs.tracks[name].length_m, schedule.test_starts)
+            drives = [
+                run_test_episode(agent, env, name, s0, seed=spec.seed * 1000 + k)
+                for k, s0 in enumerate(starts)
+            ]
+            for drive in drives:
                 test_table.append(tests_row(drive, episode, env_steps, ckpt_rel))
                 lap_table.extend(laps_rows(drive, episode))
-                if math.isfinite(drive.best_lap_s):
-                    best_here = min(best_here, drive.best_lap_s)
-                    if drive.best_lap_s < best_traces.get(name, (math.inf, None))[0]:
-                        best_traces[name] = (drive.best_lap_s, drive.best_trace)
-                        atomic_write_parquet(
-                            out / "traces" / f"{_trace_name(name)}.parquet", drive.best_trace
-                        )
+            # the model's clean lap, as every table and promotion counts it (results.metrics)
+            best_here = model_clean_lap_s([d.best_lap_s for d in drives],
+                                          [d.damage for d in drives])  # fmt: skip
+            if best_here < best_traces.get(name, math.inf):
+                best_traces[name] = best_here
+                fastest = next(d for d in drives if d.best_lap_s == best_here)
+                folder.write_trace(name, fastest.best_trace)
             if math.isfinite(best_here):
                 writer.add_scalar(f"test/best_lap_s/{name}", best_here, env_steps)
             if name == key_track and best_here < best_key_lap:
                 best_key_lap = best_here
                 save_checkpoint(
-                    agent, out / "checkpoints" / "best.pt",
+                    agent, folder.checkpoint_path(BEST_CHECKPOINT),
                     extra={"episode": episode, "best_lap_s": best_here, "track": name,
-                           "train_config": cfg_json},
+                           "run_spec": spec_json},
                 )  # fmt: skip
         # last.pt is refreshed at every test (a crashed run can still be inspected) and at the end
         save_checkpoint(
             agent,
-            out / "checkpoints" / "last.pt",
-            extra={"episode": episode, "train_config": cfg_json},
+            folder.checkpoint_path(LAST_CHECKPOINT),
+            extra={"episode": episode, "run_spec": spec_json},
         )
         _write_tables()
 
     def _write_tables() -> None:
-        import pandas as pd
+        folder.write_tables(episodes_rows, test_table, lap_table)
 
-        atomic_write_parquet(out / "episodes.parquet", pd.DataFrame(episodes_rows, columns=[
-            "episode", "track", "reward", "steps", "env_steps", "updates", "laps", "best_lap_s",
-            "damage", "termination", "epsilon", "seconds"]))  # fmt: skip
-        atomic_write_parquet(out / "tests.parquet", pd.DataFrame(test_table, columns=[
-            "episode", "env_steps", "track", "start_s_m", "finished", "best_lap_s", "laps",
-            "damage", "reward", "steps", "termination", "checkpoint"]))  # fmt: skip
-        atomic_write_parquet(out / "laps.parquet", pd.DataFrame(lap_table, columns=[
-            "episode", "track", "start_s_m", "lap_index", "lap_time_s", "lap_damage",
-            "clean"]))  # fmt: skip
-
-    train_names = list(cfg.train_tracks)
+    train_names = list(spec.train_tracks)
     stopped_early = False
-    for episode in range(1, cfg.episodes + 1):
+    for episode in range(1, schedule.episodes + 1):
         name = train_names[int(rng.integers(len(train_names)))]
         env = train_envs[name]
         obs, info = env.reset(seed=int(rng.integers(2**31 - 1)))
@@ -254,7 +176,7 @@ def train(
                         writer.close()
                         _write_tables()
                         raise DivergedError(
-                            f"{cfg.variant} seed {cfg.seed}: loss became {stats.critic_loss} / "
+                            f"{spec.variant} seed {spec.seed}: loss became {stats.critic_loss} / "
                             f"{stats.actor_loss} at update {agent.updates}, episode {episode}"
                         )
                     if agent.updates % 250 == 0:
@@ -279,11 +201,11 @@ def train(
         writer.add_scalar("train/steps", steps, env_steps)
         writer.add_scalar("train/laps", int(info.get("laps", 0)), env_steps)
         writer.add_scalar("train/epsilon", epsilon, env_steps)
-        if episode % cfg.test_every_episodes == 0 or episode == cfg.episodes:
+        if episode % schedule.test_every_episodes == 0 or episode == schedule.episodes:
             run_tests()
         if progress is not None:
             answer = progress({
-                "episode": episode, "episodes": cfg.episodes,
+                "episode": episode, "episodes": schedule.episodes,
                 "best_lap_s": _nan_to_none(best_key_lap), "env_steps": env_steps,
                 "updates": agent.updates, "seconds": time.perf_counter() - t0,
             })  # fmt: skip
@@ -295,8 +217,8 @@ def train(
     last_episode = episode
     save_checkpoint(
         agent,
-        out / "checkpoints" / "last.pt",
-        extra={"episode": last_episode, "train_config": cfg_json},
+        folder.checkpoint_path(LAST_CHECKPOINT),
+        extra={"episode": last_episode, "run_spec": spec_json},
     )
     _write_tables()
     writer.close()
@@ -313,7 +235,7 @@ def train(
         "seconds": time.perf_counter() - t0,
         "stopped_early": stopped_early,
     }
-    atomic_write_json(out / "summary.json", summary)
+    folder.write_summary(summary)
     for e in list(train_envs.values()) + list(test_envs.values()):
         e.close()
     return summary

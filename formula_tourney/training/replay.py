@@ -1,8 +1,8 @@
 """Replay a trained actor for one lap and write it as an animated GIF.
 
-``formula-tourney replay CHECKPOINT --track T --gif F``: the checkpoint's job folder
-(``<job>/checkpoints/<name>.pt`` next to ``<job>/config.json``) says which reference line, LAC
-and env settings the actor was trained with; the env is built the same way, run greedily
+``formula-tourney replay CHECKPOINT --track T --gif F``: the checkpoint's run spec says which
+reference line, LAC and env settings the actor was trained with; the env is built the same way
+(``training.envs``), run greedily
 (no exploration) from the default start until one timed lap is complete or the episode ends, and
 its ``rgb_array`` frames are written with Pillow.
 """
@@ -10,16 +10,19 @@ its ``rgb_array`` frames are written with Pillow.
 from __future__ import annotations
 
 import io
-import json
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from PIL import Image
 
 from formula_tourney.errors import UserInputError
 from formula_tourney.safeio import atomic_write_bytes
+from formula_tourney.training.checkpoint import load_run_checkpoint
+from formula_tourney.training.envs import RunEnvs
+from formula_tourney.training.evaluate import check_observation_size
 
 Policy = Callable[[np.ndarray], np.ndarray]
 """Greedy action for an observation window of shape (window, obs_dim)."""
@@ -65,8 +68,6 @@ def record_lap(env: Any, policy: Policy, window: int = 1, max_steps: int = 3000,
 def write_gif(frames: list[np.ndarray], path: str | Path, frame_duration_ms: float,
               max_width: int = 640) -> Path:
     """Frames (H, W, 3 uint8) -> animated GIF, downscaled to ``max_width`` to keep files small."""
-    from PIL import Image
-
     if not frames:
         raise UserInputError("replay: the env rendered no frames (does it support rgb_array?)")
     images = []
@@ -81,70 +82,30 @@ def write_gif(frames: list[np.ndarray], path: str | Path, frame_duration_ms: flo
     return atomic_write_bytes(path, buf.getvalue())
 
 
-def job_config(checkpoint: Path, extra: dict[str, Any]) -> dict[str, Any]:
-    """The training config of a checkpoint: saved inside it, else the job's ``config.json``."""
-    if isinstance(extra.get("config"), dict):
-        return dict(extra["config"])
-    for folder in (checkpoint.parent, checkpoint.parent.parent):
-        cfg_path = folder / "config.json"
-        if cfg_path.is_file():
-            try:
-                return json.loads(cfg_path.read_text(encoding="utf-8"))
-            except ValueError as exc:
-                raise UserInputError(f"{cfg_path}: not valid JSON ({exc})") from exc
-    return {}
-
-
-def env_config(cfg: dict[str, Any], track: str, max_steps: int) -> dict[str, Any]:
-    """The env config the actor was trained with, on ``track`` (which may be unseen)."""
-    config: dict[str, Any] = dict(cfg.get("env_overrides") or {})
-    config["track"] = track
-    config["lac"] = bool(cfg.get("lac", False))
-    config["max_steps"] = max_steps
-    reference = str(cfg.get("reference", "centre"))
-    if reference != "centre":
-        from formula_tourney.lines.registry import reference_offsets
-        from formula_tourney.sim.catalog import load_track
-
-        config["reference_line"] = reference_offsets(load_track(track), reference)
-    return config
-
-
 def replay(checkpoint: str | Path, track: str, gif: str | Path, max_steps: int = 3000,
            frame_every: int = 2, laps: int = 1, device: str = "cpu") -> dict[str, Any]:
-    """Load the actor, drive ``laps`` laps on ``track`` and write ``gif``; returns a summary."""
+    """Load the actor, drive ``laps`` laps on ``track`` and write ``gif``; returns a summary.
+
+    The env comes from the checkpoint's run spec through ``training.envs.RunEnvs``, the same
+    path training and ``eval`` take, so the replay drives the line the actor learned.
+    """
     checkpoint = Path(checkpoint)
     gif = Path(gif)
     if gif.suffix.lower() != ".gif":
         raise UserInputError(f"--gif {gif}: the file name must end in .gif")
     if not checkpoint.is_file():
         raise UserInputError(f"checkpoint {checkpoint} does not exist")
-    import gymnasium as gym
-
-    import formula_tourney  # noqa: F401 (registers FormulaRacing-v0)
-    from formula_tourney.agents.ddpg import load_checkpoint
-
-    agent, extra = load_checkpoint(checkpoint, device=device)
-    cfg = job_config(checkpoint, extra)
-    config = env_config(cfg, track, max_steps)
+    agent, spec, _extra = load_run_checkpoint(checkpoint, device=device)
+    envs = RunEnvs(spec, extra_tracks=[track])
+    env = envs.make(track, test=True, max_steps=max_steps, render_mode="rgb_array")
     try:
-        env = gym.make("FormulaRacing-v0", config=config, render_mode="rgb_array")
-    except gym.error.Error as exc:
-        raise UserInputError(f"replay: cannot build the env for track {track!r} ({exc})") from exc
-    try:
-        obs_dim = int(np.prod(env.observation_space.shape))
-        if obs_dim != agent.obs_dim:
-            raise UserInputError(
-                f"checkpoint {checkpoint} expects {agent.obs_dim} observations but the env "
-                f"gives {obs_dim} (LAC on in one and off in the other?)"
-            )
+        check_observation_size(env, agent, checkpoint)
         result = record_lap(env, agent.act, window=agent.actor_window, max_steps=max_steps,
                             frame_every=frame_every, laps=laps)
-        period_s = float(config.get("control_period_s", 0.2))
     finally:
         env.close()
-    path = write_gif(result["frames"], gif, 1000.0 * period_s * frame_every)
+    path = write_gif(result["frames"], gif, 1000.0 * spec.env.control_period_s * frame_every)
     summary = {k: v for k, v in result.items() if k != "frames"}
     summary.update(gif=str(path), frames=len(result["frames"]), track=track,
-                   checkpoint=str(checkpoint))
+                   checkpoint=str(checkpoint), reference=spec.reference)
     return summary

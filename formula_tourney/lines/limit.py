@@ -1,0 +1,19 @@
+"""A track's reference limit: the quasi-steady-state lap time on its minimum-curvature line.
+
+Every lap-time table shows the gap to it (DESIGN.md, "Lines, limit and bots"). It lives here, above
+both ``speed_profile`` (the QSS lap) and ``registry`` (the cached min-curvature line), so that
+neither of those imports the other.
+"""
+
+from __future__ import annotations
+
+from formula_tourney.lines.registry import reference_offsets
+from formula_tourney.lines.speed_profile import lap_time_s
+from formula_tourney.sim.car_params import CarParams
+from formula_tourney.sim.track import Track
+
+
+def reference_limit_s(track: Track, car: CarParams | None = None) -> float:
+    """The track's reference limit: QSS lap time on the minimum-curvature line (cached)."""
+    car = car or CarParams()
+    return lap_time_s(track, reference_offsets(track, "mincurv", car), car)

@@ -1,0 +1,233 @@
+"""Reading and writing one job folder (or baseline folder) through one set of names.
+
+Writers are atomic (temporary file, then rename), so a crash never leaves a file that a resume
+would trust. Readers turn a corrupt or foreign file into :class:`CorruptResultError`, a
+``UserInputError`` whose message names the file, never a pyarrow or JSON traceback.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from formula_tourney.errors import UserInputError
+from formula_tourney.results import layout as L
+from formula_tourney.safeio import atomic_write_json, atomic_write_parquet, atomic_write_text
+
+
+class CorruptResultError(UserInputError):
+    """A results file exists but cannot be read (truncated, not Parquet/JSON, wrong columns)."""
+
+
+class OldSchemaError(UserInputError):
+    """A job folder written by another layout version than this tool reads."""
+
+
+def read_json_file(path: Path, what: str) -> Any:
+    """A JSON file's content; CorruptResultError naming the file when it does not parse."""
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise
+    except (OSError, ValueError) as err:
+        raise CorruptResultError(f"{path}: cannot read {what} ({err})") from None
+
+
+def read_parquet_file(path: Path, what: str, columns: Sequence[str] | None = None) -> pd.DataFrame:
+    """A Parquet file as a frame with at least ``columns`` (missing ones are an error)."""
+    try:
+        frame = pd.read_parquet(path)
+    except FileNotFoundError:
+        raise
+    except Exception as err:  # pyarrow raises several types for a truncated or foreign file
+        raise CorruptResultError(f"{path}: cannot read {what} ({type(err).__name__}: {err})") \
+            from None
+    if columns is not None:
+        missing = [c for c in columns if c not in frame.columns]
+        if missing:
+            raise CorruptResultError(f"{path}: {what} lacks column(s) {', '.join(missing)}")
+    return frame
+
+
+def empty_table(name: str) -> pd.DataFrame:
+    """An empty job table with its columns."""
+    return pd.DataFrame(columns=L.JOB_TABLES[name])
+
+
+class JobFolder:
+    """One job's folder: ``JobFolder(path).tests()`` reads, ``.write_tables(...)`` writes."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+
+    # ------------------------------------------------------------------------------ paths
+    @property
+    def config_path(self) -> Path:
+        return self.path / L.CONFIG_FILE
+
+    @property
+    def summary_path(self) -> Path:
+        return self.path / L.SUMMARY_FILE
+
+    @property
+    def tb_dir(self) -> Path:
+        return self.path / L.TB_DIR
+
+    def table_path(self, name: str) -> Path:
+        if name not in L.JOB_TABLES:
+            raise ValueError(f"unknown job table {name!r}; allowed: {', '.join(L.JOB_TABLES)}")
+        return self.path / f"{name}.parquet"
+
+    def trace_path(self, track: str) -> Path:
+        return self.path / L.TRACES_DIR / f"{L.trace_name(track)}.parquet"
+
+    def checkpoint_path(self, name: str) -> Path:
+        """``best.pt``, ``last.pt`` or ``ep-<N>.pt`` inside ``checkpoints/``."""
+        return self.path / L.CHECKPOINTS_DIR / name
+
+    def checkpoint_rel(self, name: str) -> str:
+        """The checkpoint's path relative to the folder (as stored in tests.parquet)."""
+        return f"{L.CHECKPOINTS_DIR}/{name}"
+
+    # ------------------------------------------------------------------------------ state
+    def is_finished(self) -> bool:
+        """Finished when summary.json (written last) exists and parses."""
+        if not self.summary_path.is_file():
+            return False
+        try:
+            json.loads(self.summary_path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return False
+        return True
+
+    # ------------------------------------------------------------------------------ writers
+    def write_config(self, run_spec: Mapping[str, Any]) -> Path:
+        """config.json: the layout version and the run specification (plain JSON data)."""
+        return atomic_write_json(
+            self.config_path, {"schema_version": L.SCHEMA_VERSION, "run_spec": dict(run_spec)}
+        )
+
+    def write_tables(
+        self,
+        episodes: Sequence[Mapping[str, Any]],
+        tests: Sequence[Mapping[str, Any]],
+        laps: Sequence[Mapping[str, Any]],
+    ) -> None:
+        """The three job tables, each with exactly its declared columns."""
+        for name, rows in (("episodes", episodes), ("tests", tests), ("laps", laps)):
+            frame = pd.DataFrame(list(rows), columns=L.JOB_TABLES[name])
+            atomic_write_parquet(self.table_path(name), frame)
+
+    def write_trace(self, track: str, trace: pd.DataFrame) -> Path:
+        return atomic_write_parquet(self.trace_path(track), trace)
+
+    def write_summary(self, summary: Mapping[str, Any]) -> Path:
+        return atomic_write_json(self.summary_path, dict(summary))
+
+    def write_tourney_meta(self, meta: Mapping[str, Any]) -> Path:
+        return atomic_write_json(self.path / L.TOURNEY_META_FILE, dict(meta))
+
+    def write_error(self, text: str) -> Path:
+        return atomic_write_text(self.path / L.ERROR_FILE, text)
+
+    # ------------------------------------------------------------------------------ readers
+    def config(self) -> dict[str, Any]:
+        """The run specification stored in config.json (as plain data).
+
+        A folder of another layout version raises OldSchemaError saying what it is, so a report
+        of an older results folder says what it cannot read instead of guessing.
+        """
+        data = read_json_file(self.config_path, "the job's config.json")
+        version = data.get("schema_version") if isinstance(data, dict) else None
+        if version != L.SCHEMA_VERSION or not isinstance(data.get("run_spec"), dict):
+            found = "unversioned (layout 1)" if version is None else f"layout {version}"
+            raise OldSchemaError(
+                f"{self.config_path}: written by another version of formula-tourney ({found}); "
+                f"this version reads layout {L.SCHEMA_VERSION}: re-run the job to upgrade it"
+            )
+        return dict(data["run_spec"])
+
+    def summary(self) -> dict[str, Any]:
+        data = read_json_file(self.summary_path, "the job's summary.json")
+        if not isinstance(data, dict):
+            raise CorruptResultError(f"{self.summary_path}: expected a JSON object")
+        return data
+
+    def table(self, name: str) -> pd.DataFrame:
+        """A job table; an empty frame with its columns when the job has not written it yet."""
+        path = self.table_path(name)
+        if not path.is_file():
+            return empty_table(name)
+        return read_parquet_file(path, f"the job's {name} table", L.JOB_TABLES[name])
+
+    def tests(self) -> pd.DataFrame:
+        return self.table("tests")
+
+    def episodes(self) -> pd.DataFrame:
+        return self.table("episodes")
+
+    def laps(self) -> pd.DataFrame:
+        return self.table("laps")
+
+    def trace(self, track: str) -> pd.DataFrame | None:
+        """The best clean test lap's trace on ``track``, None when the job has none."""
+        path = self.trace_path(track)
+        if not path.is_file():
+            return None
+        return read_parquet_file(path, f"the trace of {track}")
+
+
+class BaselineFolder:
+    """One baseline drive's folder: result.json and the driven lap's trace."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+
+    @property
+    def result_path(self) -> Path:
+        return self.path / L.BASELINE_RESULT_FILE
+
+    @property
+    def trace_path(self) -> Path:
+        return self.path / L.BASELINE_TRACE_FILE
+
+    def is_finished(self) -> bool:
+        if not self.result_path.is_file():
+            return False
+        try:
+            json.loads(self.result_path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return False
+        return True
+
+    def write_result(self, result: Mapping[str, Any]) -> Path:
+        return atomic_write_json(self.result_path, dict(result))
+
+    def write_trace(self, trace: pd.DataFrame) -> Path:
+        return atomic_write_parquet(self.trace_path, trace)
+
+    def result(self) -> dict[str, Any]:
+        data = read_json_file(self.result_path, "the baseline's result.json")
+        if not isinstance(data, dict):
+            raise CorruptResultError(f"{self.result_path}: expected a JSON object")
+        return data
+
+    def trace(self) -> pd.DataFrame | None:
+        if not self.trace_path.is_file():
+            return None
+        return read_parquet_file(self.trace_path, "the baseline's trace")
+
+
+__all__ = [
+    "BaselineFolder",
+    "CorruptResultError",
+    "JobFolder",
+    "OldSchemaError",
+    "empty_table",
+    "read_json_file",
+    "read_parquet_file",
+]

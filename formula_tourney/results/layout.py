@@ -1,0 +1,121 @@
+"""File names, column lists, schema version and SQL schema of a results folder.
+
+Layout::
+
+    <tournament>/index.sqlite                          the index (written by the parent only)
+    <tournament>/.lock                                 held by the running ``run``
+    <tournament>/<part>/<entrant>/seed-<n>/            one training job (a job folder)
+    <tournament>/<part>/_baselines/<bot>-<ref>-<track>/  one baseline drive
+    <tournament>/optuna/<variant>.journal              tune studies
+
+A job folder: ``config.json`` (schema version + run spec), ``episodes.parquet``,
+``tests.parquet``, ``laps.parquet``, ``traces/<track>.parquet``, ``checkpoints/``, ``tb/``,
+``tourney.json`` (who the job is in its tournament), ``error.txt`` (a failed attempt's reason) and
+``summary.json`` written last: its presence means finished.
+"""
+
+from __future__ import annotations
+
+import re
+
+SCHEMA_VERSION = 2
+"""Version of the job-folder layout written into config.json. 1: the unversioned layout before
+the run specification (flat TrainConfig, no distance_m in tests.parquet)."""
+
+CONFIG_FILE = "config.json"
+SUMMARY_FILE = "summary.json"
+TOURNEY_META_FILE = "tourney.json"
+ERROR_FILE = "error.txt"
+TRACES_DIR = "traces"
+CHECKPOINTS_DIR = "checkpoints"
+TB_DIR = "tb"
+BEST_CHECKPOINT = "best.pt"
+LAST_CHECKPOINT = "last.pt"
+
+INDEX_FILE = "index.sqlite"
+LOCK_FILE = ".lock"
+BASELINE_DIR = "_baselines"
+BASELINE_RESULT_FILE = "result.json"
+BASELINE_TRACE_FILE = "trace.parquet"
+OPTUNA_DIR = "optuna"
+
+JOB_TABLES: dict[str, list[str]] = {
+    "episodes": [
+        "episode", "track", "reward", "steps", "env_steps", "updates", "laps", "best_lap_s",
+        "damage", "termination", "epsilon", "seconds",
+    ],
+    "tests": [
+        "episode", "env_steps", "track", "start_s_m", "finished", "best_lap_s", "laps", "damage",
+        "reward", "steps", "termination", "checkpoint", "distance_m",
+    ],
+    "laps": ["episode", "track", "start_s_m", "lap_index", "lap_time_s", "lap_damage", "clean"],
+}  # fmt: skip
+"""Columns of each job table, in order (docs/CONTRACTS.md, "training (one run)")."""
+
+TRACE_COLUMNS = [
+    "time_s", "distance_m", "s_m", "lateral_m", "x_m", "y_m", "speed_kmh", "steer", "throttle",
+    "brake",
+]  # fmt: skip
+
+INDEX_TABLES: dict[str, list[str]] = {
+    "jobs": [
+        "job_id", "study", "part", "entrant", "variant", "family", "seed", "reference", "lac",
+        "train_tracks", "status", "reason", "attempts", "path", "started_at", "finished_at",
+        "wall_s", "position", "config_hash", "worker_pid", "best_lap_s", "finished", "damage",
+        "train_seconds", "test_distance_m",
+    ],
+    "parts": [
+        "part", "study", "position", "status", "entrants", "promoted", "reason", "ranking",
+        "source",
+    ],
+    "baselines": [
+        "part", "bot", "track", "reference", "best_lap_s", "damage", "finished",
+        "reference_limit_s", "status", "reason", "path",
+    ],
+    "general_models": [
+        "part", "job_id", "entrant", "seed", "episode", "checkpoint", "train_track",
+        "train_lap_s", "laps", "chosen",
+    ],
+}  # fmt: skip
+
+INDEX_SCHEMA = """
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS jobs (
+    job_id TEXT PRIMARY KEY, study TEXT, part TEXT, entrant TEXT, variant TEXT, family TEXT,
+    seed INTEGER, reference TEXT, lac INTEGER, train_tracks TEXT,
+    status TEXT NOT NULL DEFAULT 'pending', reason TEXT, attempts INTEGER NOT NULL DEFAULT 0,
+    path TEXT, started_at TEXT, finished_at TEXT, wall_s REAL,
+    position INTEGER, config_hash TEXT, worker_pid INTEGER,
+    best_lap_s REAL, finished INTEGER, damage REAL, train_seconds REAL, test_distance_m REAL
+);
+CREATE TABLE IF NOT EXISTS parts (
+    part TEXT PRIMARY KEY, study TEXT, position INTEGER, status TEXT NOT NULL DEFAULT 'pending',
+    entrants TEXT, promoted TEXT, reason TEXT, ranking TEXT, source TEXT
+);
+CREATE TABLE IF NOT EXISTS baselines (
+    part TEXT, bot TEXT, track TEXT, reference TEXT, best_lap_s REAL, damage REAL,
+    finished INTEGER, reference_limit_s REAL, status TEXT NOT NULL DEFAULT 'pending', reason TEXT,
+    path TEXT, PRIMARY KEY (part, bot, track, reference)
+);
+CREATE TABLE IF NOT EXISTS general_models (
+    part TEXT, job_id TEXT PRIMARY KEY, entrant TEXT, seed INTEGER, episode INTEGER,
+    checkpoint TEXT, train_track TEXT, train_lap_s REAL, laps TEXT, chosen INTEGER
+);
+"""
+
+JOB_STATUSES = ("pending", "running", "done", "failed")
+
+
+def job_rel_path(part: str, entrant: str, seed: int) -> str:
+    """Job folder relative to the tournament root; equal to the job id."""
+    return f"{part}/{entrant}/seed-{seed}"
+
+
+def baseline_rel_path(part: str, bot: str, reference: str, track: str) -> str:
+    """Baseline folder relative to the tournament root."""
+    return f"{part}/{BASELINE_DIR}/{bot}-{reference}-{trace_name(track)}"
+
+
+def trace_name(track: str) -> str:
+    """File-name stem for a track's trace (a track may be a path or a gen-<seed> name)."""
+    return re.sub(r"[^A-Za-z0-9_.+-]", "_", str(track))[:100] or "track"

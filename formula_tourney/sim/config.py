@@ -1,0 +1,269 @@
+"""The env's configuration: one pydantic model that owns every FormulaRacing-v0 key.
+
+The env, the run specification (``training.spec``) and tournament files all validate env keys
+here, so a key's meaning, default and allowed range are written once. Two levels:
+
+- :class:`EnvSettings` holds the knobs a study may change per run (physics, ends, reward terms,
+  the car). Tournament ``env_overrides`` and ``train --env-set`` are partial EnvSettings: the keys
+  a user set are ``model_fields_set``.
+- :class:`EnvConfig` adds the keys a *run* owns (track, reference line, LAC, episode length,
+  random starts): a run specification sets those from its own fields, so an override cannot
+  silently fight them (the bug behind issue 10's item 2).
+
+Like highway-env, a user's dict is merged over the defaults; unlike it, unknown keys are an error.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Annotated, Any
+
+import numpy as np
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+)
+
+from formula_tourney.errors import UserInputError
+from formula_tourney.sim.car_params import CarParams
+from formula_tourney.sim.track import Track
+
+
+def _real(value: Any) -> Any:
+    """Numbers only: pydantic's lax mode would turn ``true`` or ``"3"`` into a float."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(
+        value, (int, float, np.integer, np.floating)
+    ):
+        raise ValueError(f"expected a number, got {value!r}")
+    if not math.isfinite(float(value)):
+        raise ValueError(f"expected a finite number, got {value!r}")
+    return float(value)
+
+
+def _integer(value: Any) -> Any:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"expected an integer, got {value!r}")
+    return int(value)
+
+
+def _boolean(value: Any) -> Any:
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"expected true or false, got {value!r}")
+    return bool(value)
+
+
+Real = Annotated[float, BeforeValidator(_real)]
+Integer = Annotated[int, BeforeValidator(_integer)]
+Boolean = Annotated[bool, BeforeValidator(_boolean)]
+
+RUN_OWNED_KEYS: tuple[str, ...] = ("track", "reference_line", "lac", "max_steps", "random_start")
+"""Env keys a run specification sets from its own fields (never from env overrides)."""
+
+
+class EnvSettings(BaseModel):
+    """FormulaRacing-v0 settings a study may change; every run of a tournament part shares them."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    lac_distances_m: tuple[Annotated[Real, Field(gt=0.0)], ...] = Field(
+        (20.0, 40.0, 60.0, 80.0),
+        min_length=1,
+        max_length=32,
+        description="Distances ahead (m) at which LAC reads the reference line's curvature "
+        "(each in (0, track length); the env checks the upper bound once it has the track).",
+    )
+    control_period_s: Real = Field(
+        0.2, gt=0.0, le=10.0, description="Seconds between two actions (the paper's 200 ms)."
+    )
+    physics_hz: Real = Field(
+        100.0, ge=100.0, le=10000.0, description="Physics substeps per second inside a step."
+    )
+    terminate_off_track: Boolean = Field(
+        True, description="End the episode (terminated, reward -1) when the car leaves the track."
+    )
+    terminate_backwards: Boolean = Field(
+        True, description="End the episode (terminated) when the car drives backwards."
+    )
+    terminate_slow: Boolean = Field(
+        True, description="End the episode (terminated) after too slow progress."
+    )
+    slow_speed_kmh: Real = Field(
+        10.0, ge=0.0, le=400.0, description="Below this speed a step counts as slow."
+    )
+    slow_patience_steps: Integer = Field(
+        25, ge=1, description="Consecutive slow steps that end the episode."
+    )
+    slow_penalty: Real = Field(
+        100.0,
+        ge=0.0,
+        description="Reward on a slow end is -slow_penalty: a slow end without penalty taught "
+        "a run to stop on track (DESIGN.md).",
+    )
+    damage_weight: Real = Field(
+        0.01, ge=0.0, description="Reward term: minus this times the damage taken in the step."
+    )
+    start_speed_mps: Real = Field(
+        0.0, ge=0.0, le=100.0, description="Speed at reset along the reference line."
+    )
+    grass_width_m: Real = Field(
+        5.0, ge=0.0, le=100.0, description="Grass beyond each asphalt edge before the wall."
+    )
+    car: dict[str, Any] = Field(
+        default_factory=dict,
+        description="Overrides of the car's physical constants (keys of sim.car_params."
+        "CarParams, e.g. mu, mass_kg).",
+    )
+
+    @field_validator("car")
+    @classmethod
+    def _car_params(cls, value: dict[str, Any]) -> dict[str, Any]:
+        try:
+            CarParams(**value)
+        except ValidationError as err:
+            problems = "; ".join(
+                f"{'.'.join(str(p) for p in e['loc']) or 'value'}: {e['msg']}"
+                for e in err.errors()
+            )
+            allowed = ", ".join(CarParams.model_fields)
+            raise ValueError(
+                f"invalid car parameters ({problems}); allowed keys: {allowed}"
+            ) from None
+        return dict(value)
+
+    def car_params(self) -> CarParams:
+        """The car these settings describe."""
+        return CarParams(**self.car)
+
+    def overrides(self) -> dict[str, Any]:
+        """Only the keys a user set, as plain JSON-able values (what a run spec stores)."""
+        return self.model_dump(mode="json", exclude_unset=True)
+
+    @classmethod
+    def parse(cls, data: Mapping[str, Any] | None, source: str = "env overrides") -> EnvSettings:
+        """Validate a user's partial dict; UserInputError names ``source``, the key and the
+        allowed keys."""
+        return _parse(cls, data, source)
+
+
+class EnvConfig(EnvSettings):
+    """Every FormulaRacing-v0 key: the settings plus what one run (or one drive) sets itself."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, arbitrary_types_allowed=True)
+
+    track: str | Track = Field(
+        "oval", description="Track name (built-in, user, gen-<seed>, .toml/.xml path) or Track."
+    )
+    reference_line: Any = Field(
+        "centre",
+        description="'centre' or one lateral offset (m, left > 0) per track sample "
+        "(bots.reference.reference_offsets gives the other lines).",
+    )
+    lac: Boolean = Field(False, description="Add the look-ahead curvature to the observation.")
+    max_steps: Integer = Field(
+        1000, ge=1, description="Control steps per episode; the end is a truncation."
+    )
+    random_start: Boolean = Field(
+        False, description="Start each episode at a random place on the track."
+    )
+
+    @field_validator("track", mode="before")
+    @classmethod
+    def _track(cls, value: Any) -> Any:
+        # Before pydantic's own union check: Track is a dataclass, which pydantic would also
+        # build from a dict, and its union errors name 'track.str' / 'track.Track'.
+        if not isinstance(value, (str, Track)):
+            raise ValueError(f"expected a track name or a Track, got {type(value).__name__}")
+        return value
+
+    @field_validator("reference_line")
+    @classmethod
+    def _reference(cls, value: Any) -> Any:
+        if isinstance(value, str):
+            if value != "centre":
+                raise ValueError(
+                    f"{value!r} is not 'centre'; pass an array of offsets "
+                    "(bots.reference.reference_offsets) for other lines"
+                )
+            return value
+        try:
+            offsets = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            offsets = np.empty(0)
+        if offsets.ndim != 1 or offsets.size == 0 or not np.all(np.isfinite(offsets)):
+            raise ValueError(
+                "expected 'centre' or a 1-D array of finite offsets (one per track sample)"
+            )
+        return offsets
+
+    def as_dict(self) -> dict[str, Any]:
+        """Every key with its value, as the env's ``config`` dict (values not copied or dumped:
+        a Track or an offsets array stays the object that was passed)."""
+        out = {name: getattr(self, name) for name in type(self).model_fields}
+        out["car"] = dict(self.car)
+        return out
+
+    @classmethod
+    def parse(cls, data: Mapping[str, Any] | EnvSettings | None, source: str = "config",
+              ) -> EnvConfig:
+        """Validate a dict merged over the defaults (or take an EnvConfig / EnvSettings)."""
+        return _parse(cls, data, source)
+
+
+class ResetOptions(BaseModel):
+    """``options`` of ``env.reset``: where and how fast the car starts (default: the config's)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    start_s_m: Real | None = Field(
+        None, description="Track position (m along the centreline) of the start; any real "
+        "number, taken modulo the track length."
+    )
+    start_speed_mps: Real | None = Field(
+        None, ge=0.0, le=100.0, description="Speed at the start along the reference line."
+    )
+
+    @classmethod
+    def parse(cls, data: Mapping[str, Any] | None) -> ResetOptions:
+        return _parse(cls, data, "reset options", noun="option")
+
+
+def _parse(model: type[BaseModel], data: Any, source: str, noun: str = "config key") -> Any:
+    if data is None:
+        return model()
+    if type(data) is model:
+        return data  # already validated (frozen), nothing to merge
+    if isinstance(data, EnvSettings):
+        data = {k: getattr(data, k) for k in data.model_fields_set}
+    if not isinstance(data, Mapping):
+        raise UserInputError(f"{source}: expected a dict, got {type(data).__name__}")
+    try:
+        return model.model_validate(dict(data))
+    except ValidationError as err:
+        raise UserInputError(describe(err, model, source, noun)) from None
+
+
+def describe(err: ValidationError, model: type[BaseModel], source: str,
+             noun: str = "config key") -> str:
+    """``source: config key 'k': problem`` lines, listing the allowed keys for unknown ones."""
+    lines = []
+    for item in err.errors():
+        key = ".".join(str(p) for p in item["loc"]) or "value"
+        if item["type"] == "extra_forbidden":
+            lines.append(
+                f"{source}: unknown {noun} '{key}'; known {noun.split()[-1]}s: "
+                f"{', '.join(sorted(model.model_fields))}"
+            )
+        else:
+            msg = str(item["msg"]).removeprefix("Value error, ")
+            lines.append(f"{source}: {noun} '{key}': {msg}")
+    return "\n".join(lines)
+
+
+def default_config() -> dict[str, Any]:
+    """Every env key with its default (highway-env style), as a plain dict."""
+    return dict(EnvConfig().model_dump())

@@ -1,0 +1,41 @@
+"""A job: one unit of work (a training run or a baseline drive) as plain, picklable data.
+
+The plan makes jobs, the scheduler queues them, an executor ships them to a worker process or a
+Ray task, and ``tourney.runner`` runs them. A training job carries its run specification as JSON
+(``training.spec.RunSpec.to_json()``), built and validated once in the parent; the worker only
+reads it back. A baseline job carries the bot, line, track and laps of its drive.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+JobKind = Literal["train", "baseline"]
+
+
+@dataclass(frozen=True)
+class Job:
+    """One unit of work, sent to a worker process or a Ray task."""
+
+    job_id: str
+    """``<part>/<entrant>/seed-<n>`` (train) or the baseline folder (both relative paths)."""
+    kind: JobKind
+    part: str
+    out_dir: str
+    """Absolute folder the job writes."""
+    spec: dict[str, Any] = field(default_factory=dict)
+    """Train: the RunSpec as JSON. Baseline: bot, reference, track, laps."""
+    config_hash: str = ""
+    """Train: ``RunSpec.digest()``, compared on resume to tell a changed tournament file."""
+    meta: dict[str, Any] = field(default_factory=dict)
+    """Who the job is in its tournament (entrant, variant, family, seed, ...; index columns)."""
+    position: int = 0
+    """Index of the part in the tournament (earlier parts run first)."""
+
+    @property
+    def episodes(self) -> int:
+        """Training episodes of a train job (progress totals); 2 steps for a baseline drive."""
+        if self.kind != "train":
+            return 2
+        return int(self.spec.get("schedule", {}).get("episodes") or 1)

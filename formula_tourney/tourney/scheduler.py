@@ -1,0 +1,364 @@
+"""The parent's loop: submit jobs as slots free up, record every event, close parts, promote.
+
+The scheduler is the only writer of ``index.sqlite`` while a tournament runs. It resumes from
+the index (reconciled with the job folders first), closes a part when its last job ends,
+promotes into the parts that wait on it, and goes on until no work is left. ``retry_failed``
+re-opens the parts that hold failed jobs (a closed part is otherwise frozen, since its
+promotion was decided on those results) and the parts downstream of them, whose promotion is
+then computed again. Progress reaches whoever shows it through :class:`RunProgress`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from formula_tourney.results.folder import CorruptResultError
+from formula_tourney.tourney.executors import Event, Executor
+from formula_tourney.tourney.jobs import Job
+from formula_tourney.tourney.outcomes import baseline_result, general_pick, job_metrics
+from formula_tourney.tourney.plan import PlannedPart, Planner
+from formula_tourney.tourney.promote import promote, rank_entrants
+from formula_tourney.tourney.store import Store
+
+
+class RunProgress(Protocol):
+    """What the scheduler tells a progress display (the CLI's bars; nothing below the CLI
+    draws). Slots are the executor's worker slots."""
+
+    def start(self, workers: int) -> None: ...
+    def set_total(self, total: int, done: int) -> None: ...
+    def job_started(self, slot: int, job_id: str, episodes: int) -> None: ...
+    def job_progress(self, slot: int, info: dict[str, Any]) -> None: ...
+    def job_ended(self, slot: int, note: str) -> None: ...
+    def stop(self) -> None: ...
+
+
+@dataclass
+class _PartState:
+    planned: PlannedPart
+    variants: list[str] | None
+    status: str = "pending"
+    jobs: dict[str, Job] = field(default_factory=dict)
+    baselines: dict[str, Job] = field(default_factory=dict)
+
+
+class Scheduler:
+    """Runs the planned parts of one tournament on an executor, resuming from the index."""
+
+    def __init__(
+        self,
+        planner: Planner,
+        planned: list[PlannedPart],
+        store: Store,
+        retries: int = 0,
+        retry_failed: bool = False,
+        on_event: Callable[[Event], None] | None = None,
+        progress: RunProgress | None = None,
+    ) -> None:
+        self.planner = planner
+        self.spec = planner.spec
+        self.store = store
+        self.retries = retries
+        self.retry_failed = retry_failed
+        self.on_event = on_event
+        self.progress = progress
+        self.parts = {p.part.name: _PartState(p, p.variants) for p in planned}
+        self.order = [p.part.name for p in planned]
+        self.queue: list[Job] = []
+        self.running: dict[str, tuple[Job, int]] = {}
+        self.attempts: dict[str, int] = {}
+        self.counts = {"done": 0, "failed": 0, "retried": 0, "skipped": 0, "recovered": 0,
+                       "reopened": 0}  # fmt: skip
+
+    # -------------------------------------------------------------- setup
+    def _downstream(self, names: set[str]) -> set[str]:
+        """Parts promoted (directly or not) from any of ``names``."""
+        found: set[str] = set()
+        changed = True
+        while changed:
+            changed = False
+            for name in self.order:
+                source = self.parts[name].planned.part.promoted_from
+                if name not in found and (source in names or source in found):
+                    found.add(name)
+                    changed = True
+        return found
+
+    def _reopen_failed(self) -> set[str]:
+        """Mark the parts holding failed jobs, and those downstream, pending again; returns
+        the downstream parts, which wait for a new promotion."""
+        failed_parts = {r["part"] for r in self.store.job_rows() if r["status"] == "failed"}
+        failed_parts |= {r["part"] for r in self.store.baseline_rows() if r["status"] == "failed"}
+        failed_parts &= set(self.order)
+        downstream = self._downstream(failed_parts)
+        for name in self.order:
+            if name not in failed_parts | downstream:
+                continue
+            row = self.store.part(name) or {}
+            promoted = {k: v for k, v in (row.get("promoted") or {}).items()
+                        if k not in downstream}  # fmt: skip
+            self.store.set_part(name, status="pending", promoted=promoted)
+        self.counts["reopened"] = len(failed_parts | downstream)
+        return downstream
+
+    def _open(self) -> None:
+        store = self.store
+        store.set_meta("tournament", self.spec.name)
+        store.set_meta("spec", self.spec.model_dump_json())
+        fixed = store.reconcile(job_metrics)
+        self.counts["recovered"] = fixed["recovered_done"]
+        for name in self.order:
+            state = self.parts[name]
+            part = state.planned.part
+            store.add_part(name, part.study, state.planned.position, part.promoted_from)
+        waiting = self._reopen_failed() if self.retry_failed else set()
+        for name in self.order:
+            state = self.parts[name]
+            row = store.part(name) or {}
+            state.status = row.get("status", "pending")
+            if state.status == "running":
+                state.status = "pending"
+            if state.status == "done" and self._dependents_unpromoted(name):
+                state.status = "pending"  # died between closing the part and promoting: redo
+            if state.variants is None and name not in waiting:
+                state.variants = self._stored_promotion(name)
+            if state.variants is not None:
+                self._materialise(state)
+
+    def _dependents_unpromoted(self, name: str) -> bool:
+        promoted = (self.store.part(name) or {}).get("promoted") or {}
+        return any(
+            self.parts[o].planned.part.promoted_from == name and o not in promoted
+            for o in self.order
+        )
+
+    def _stored_promotion(self, name: str) -> list[str] | None:
+        part = self.parts[name].planned.part
+        if part.promoted_from is None:
+            return None
+        source = self.store.part(part.promoted_from) or {}
+        promoted = source.get("promoted") or {}
+        return list(promoted[name]) if name in promoted else None
+
+    def _materialise(self, state: _PartState) -> None:
+        """Create the jobs of a part whose variants are known; queue what is not finished."""
+        part = state.planned.part
+        jobs = self.planner.jobs(state.planned.position, state.variants or [])
+        state.jobs = {j.job_id: j for j in jobs}
+        state.baselines = {j.job_id: j for j in state.planned.baselines}
+        store = self.store
+        store.drop_jobs_except(part.name, state.jobs)
+        store.add_jobs([{**j.meta, "job_id": j.job_id, "position": j.position,
+                         "config_hash": j.config_hash} for j in jobs])  # fmt: skip
+        store.add_baselines(j.meta for j in state.baselines.values())
+        entrants = list(dict.fromkeys(j.meta["entrant"] for j in jobs))
+        store.set_part(part.name, entrants=entrants)
+        statuses = {j.job_id: (store.job(j.job_id) or {}).get("status") for j in jobs}
+        for job_id, status in statuses.items():
+            # A folder finished before the index knew of it (a rebuilt index, a promotion
+            # made again): record it instead of sending it to a worker.
+            if status == "pending" and store.recover(job_id, job_metrics):
+                statuses[job_id] = "done"
+                self.counts["recovered"] += 1
+        self.counts["skipped"] += sum(s == "done" for s in statuses.values())
+        if state.status in ("done", "failed"):
+            return  # frozen: its promotion was made on these results
+        for job in jobs:
+            if statuses[job.job_id] == "done":
+                continue
+            if statuses[job.job_id] == "failed":
+                store.mark_pending(job.job_id)
+            self.queue.append(job)
+        base_rows = {(r["bot"], r["track"], r["reference"]): r
+                     for r in store.baseline_rows(part.name)}  # fmt: skip
+        for job in state.baselines.values():
+            key = (job.meta["bot"], job.meta["track"], job.meta["reference"])
+            if base_rows.get(key, {}).get("status") != "done":
+                self.queue.append(job)
+        self.queue.sort(key=lambda j: (j.position, j.kind != "train"))
+
+    # -------------------------------------------------------------- main loop
+    def run(self, pool: Executor) -> None:
+        """Run until no job is queued or running (KeyboardInterrupt goes to the caller)."""
+        self._open()
+        self._close_finished_parts()
+        while self.queue or self.running:
+            while self.queue and pool.free_slots() > 0:
+                job = self.queue.pop(0)
+                slot = pool.submit(job)
+                self.running[job.job_id] = (job, slot)
+                self.attempts[job.job_id] = self.attempts.get(job.job_id, 0) + 1
+                self._record_start(job)
+                if self.progress:
+                    self.progress.job_started(slot, job.job_id, job.episodes)
+            self._update_total()
+            for event in pool.poll(0.5):
+                self._handle(event)
+            self._close_finished_parts()
+        self._close_finished_parts()
+        self._update_total()
+
+    def abandon(self) -> None:
+        """After an interrupt: the jobs that were running go back to pending in the index."""
+        for job, _slot in self.running.values():
+            if job.kind == "train":
+                self.store.mark_pending(job.job_id)
+            else:
+                self.store.set_baseline(_bkey(job), status="pending")
+        self.running.clear()
+
+    def _update_total(self) -> None:
+        if self.progress is None:
+            return
+        total = sum(len(s.jobs) + len(s.baselines) for s in self.parts.values())
+        done = sum(r["status"] in ("done", "failed") and r["job_id"] not in self.running
+                   for r in self.store.job_rows())  # fmt: skip
+        done += sum(r["status"] in ("done", "failed") for r in self.store.baseline_rows())
+        self.progress.set_total(total, done)
+
+    def _record_start(self, job: Job) -> None:
+        if job.kind == "train":
+            self.store.mark_running(job.job_id, None)
+        else:
+            self.store.set_baseline(_bkey(job), status="running")
+
+    def _handle(self, event: Event) -> None:
+        if self.on_event is not None:
+            self.on_event(event)
+        entry = self.running.get(event.job_id)
+        if entry is None:
+            return
+        job, slot = entry
+        if event.kind == "started":
+            if job.kind == "train" and event.pid is not None:
+                self.store.set_worker_pid(job.job_id, event.pid)
+        elif event.kind == "progress":
+            if self.progress:
+                self.progress.job_progress(slot, event.info)
+        elif event.kind == "done":
+            del self.running[job.job_id]
+            try:
+                self._record_done(job, event)
+            except CorruptResultError as err:  # finished, but its files cannot be read back
+                self._record_failed(job, slot, str(err), event.wall_s, retry=False)
+                return
+            self.counts["done"] += 1
+            if self.progress:
+                self.progress.job_ended(slot, f"done {job.job_id}")
+        elif event.kind == "failed":
+            del self.running[job.job_id]
+            self._record_failed(job, slot, event.reason, event.wall_s, retry=True)
+
+    def _record_failed(self, job: Job, slot: int, reason: str, wall_s: float,
+                       retry: bool) -> None:
+        if retry and self.attempts[job.job_id] <= self.retries:
+            self.counts["retried"] += 1
+            if job.kind == "train":
+                self.store.mark_failed(job.job_id, reason, wall_s)
+                self.store.mark_pending(job.job_id)
+            self.queue.insert(0, job)
+        else:
+            self.counts["failed"] += 1
+            if job.kind == "train":
+                self.store.mark_failed(job.job_id, reason, wall_s)
+            else:
+                self.store.set_baseline(_bkey(job), status="failed", reason=reason)
+        if self.progress:
+            self.progress.job_ended(slot, f"FAILED {job.job_id}")
+
+    def _record_done(self, job: Job, event: Event) -> None:
+        if job.kind == "train":
+            metrics = job_metrics(job.out_dir, job.config_hash)
+            self.store.mark_done(job.job_id, metrics, event.wall_s)
+            return
+        result = baseline_result(job.out_dir)
+        self.store.set_baseline(
+            _bkey(job), status="done", reason=None, best_lap_s=result["best_lap_s"],
+            damage=result["damage"], finished=int(bool(result["finished"])),
+            reference_limit_s=result["reference_limit_s"],
+        )
+
+    # -------------------------------------------------------------- parts and promotion
+    def _close_finished_parts(self) -> None:
+        changed = True
+        while changed:
+            changed = False
+            for name in self.order:
+                state = self.parts[name]
+                if state.status in ("done", "failed") or state.variants is None:
+                    continue
+                if any(j.part == name for j in self.queue) or any(
+                    j.part == name for j, _ in self.running.values()
+                ):
+                    if state.status != "running":
+                        state.status = "running"
+                        self.store.set_part(name, status="running")
+                    continue
+                self._finish_part(state)
+                changed = True
+
+    def _finish_part(self, state: _PartState) -> None:
+        part = state.planned.part
+        rows = self.store.job_rows(part.name)
+        failed = [r for r in rows if r["status"] == "failed"]
+        ranking = rank_entrants(rows)
+        if part.selection.kind == "general":
+            self._select_general(state, rows)
+        reason = f"{len(failed)} of {len(rows)} jobs failed" if failed else None
+        promoted = dict((self.store.part(part.name) or {}).get("promoted") or {})
+        for name in self.order:
+            other = self.parts[name]
+            if other.planned.part.promoted_from != part.name:
+                continue
+            variants, ranking = promote(rank_entrants(rows), other.planned.part.promotion)
+            promoted[name] = variants
+            if other.variants is not None:
+                continue  # already promoted (and materialised) earlier in this run
+            if variants:
+                other.variants = variants
+                self._materialise(other)
+            else:
+                self._fail_part(name, f"no entrant of {part.name} met the promotion rule")
+        # Status last: a crash before this line makes the resumed run close the part again.
+        state.status = "done"
+        self.store.set_part(part.name, ranking=ranking, promoted=promoted, reason=reason,
+                            status="done")
+
+    def _fail_part(self, name: str, reason: str) -> None:
+        state = self.parts[name]
+        state.status = "failed"
+        state.variants = []
+        self.store.set_part(name, status="failed", reason=reason, entrants=[])
+        for other in self.order:
+            if self.parts[other].planned.part.promoted_from == name:
+                self._fail_part(other, f"source part {name} failed")
+
+    def _select_general(self, state: _PartState, rows: list[dict[str, Any]]) -> None:
+        part = state.planned.part
+        position = state.planned.position
+        key = self.planner.key_track(position)
+        tests = list(self.planner.tracks(position)[1])
+        found = []
+        for row in rows:
+            if row["status"] != "done":
+                continue
+            pick = general_pick(self.store.job_dir(row["job_id"]), row["job_id"], key, tests,
+                                part.selection.min_unseen_finish_rate)
+            if pick is not None:
+                found.append({**pick, "entrant": row["entrant"], "seed": row["seed"],
+                              "chosen": False})
+        best: dict[str, dict[str, Any]] = {}
+        for item in found:
+            if item["entrant"] not in best or item["train_lap_s"] < best[item["entrant"]][
+                "train_lap_s"
+            ]:
+                best[item["entrant"]] = item
+        for item in best.values():
+            item["chosen"] = True
+        self.store.set_general_models(part.name, found)
+
+
+def _bkey(job: Job) -> tuple[str, str, str, str]:
+    return (job.part, job.meta["bot"], job.meta["track"], job.meta["reference"])

@@ -1,0 +1,188 @@
+"""The run specification: everything one training run needs, built and validated once.
+
+``build_run_spec`` is the one function that turns user settings (a tournament part, a tune
+trial, the ``train`` command's options) into a :class:`RunSpec`; it runs in the parent process,
+so a bad value fails before anything is written. The spec travels to workers as JSON, is what a
+job folder's ``config.json`` and a checkpoint hold, and is never re-defaulted downstream.
+
+A spec is made of four owned parts: the agent's configuration (``agents.variants.AgentConfig``),
+the env's settings (``sim.config.EnvSettings``), the reference line and LAC, and the schedule.
+Keys an env override would share with the run (``lac``, ``max_steps``, ...) are not env settings
+at all, so setup and override can never both set one.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from formula_tourney.agents.variants import AgentConfig, get_variant
+from formula_tourney.errors import UserInputError
+from formula_tourney.sim.catalog import check_track_name
+from formula_tourney.sim.config import RUN_OWNED_KEYS, EnvSettings
+
+Reference = Literal["centre", "recorded", "mincurv"]
+Device = Literal["auto", "cpu", "cuda"]
+
+RUN_OWNED_HINTS: dict[str, str] = {
+    "track": "train_tracks / test_tracks",
+    "reference_line": "the setup's reference",
+    "lac": "the setup's lac",
+    "max_steps": "max_steps (training) and test_max_steps (tests)",
+    "random_start": "random_start",
+}
+"""Where to set each env key that a run owns, for the error when an override names one."""
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Schedule(_Frozen):
+    """How long a run trains and how often, from where and how long it is tested."""
+
+    episodes: int = Field(100, ge=1, description="Training episodes.")
+    max_steps: int = Field(
+        1000, ge=1, description="Control steps per training episode (truncated at the end)."
+    )
+    random_start: bool = Field(
+        True, description="Start training episodes at random places on the track."
+    )
+    test_every_episodes: int = Field(
+        10, ge=1, description="Run the tests after every this many training episodes (and last)."
+    )
+    test_starts: int = Field(
+        3, ge=1, le=64, description="Start positions per test track, evenly spaced on the lap."
+    )
+    test_max_steps: int = Field(
+        1500, ge=1, description="Control steps per test episode (enough for two laps)."
+    )
+    save_test_checkpoints: bool = Field(
+        False, description="Keep a checkpoint ep-<N>.pt at every test, not only best and last."
+    )
+
+
+SCHEDULE_KEYS: tuple[str, ...] = tuple(Schedule.model_fields)
+
+
+class RunSpec(_Frozen):
+    """One run: a variant trained on one track or a list, tested periodically with epsilon = 0."""
+
+    variant: str = Field(description="Name of the registered variant the agent config is from.")
+    agent: AgentConfig = Field(description="The agent's full configuration (overrides applied).")
+    env: EnvSettings = Field(
+        default_factory=EnvSettings, description="FormulaRacing-v0 settings shared by all envs."
+    )
+    train_tracks: tuple[str, ...] = Field(
+        min_length=1, description="Tracks to train on; one is drawn per episode."
+    )
+    test_tracks: tuple[str, ...] = Field(
+        min_length=1, description="Tracks to test on (the first train track is the key track)."
+    )
+    reference: Reference = Field(
+        "centre",
+        description="Reference line of the reward and LAC: centre (MOT), recorded (the "
+        "follower bot's driven line) or mincurv (minimum-curvature racing line).",
+    )
+    lac: bool = Field(False, description="Add the look-ahead curvature (LAC) to the observation.")
+    schedule: Schedule = Field(default_factory=Schedule, description="Training and tests.")
+    seed: int = Field(0, ge=0, description="Seed of weights, replay, exploration and env starts.")
+    device: Device = Field("auto", description="Torch device: auto picks CUDA when present.")
+    threads: int = Field(
+        1, ge=1, le=256, description="torch threads in this process (one per worker measured best)."
+    )
+
+    @field_validator("train_tracks", "test_tracks")
+    @classmethod
+    def _no_blank(cls, v: tuple[str, ...]) -> tuple[str, ...]:
+        if any(not t.strip() for t in v):
+            raise ValueError("track names must be non-empty strings")
+        return v
+
+    @property
+    def key_track(self) -> str:
+        """The track lap times, best checkpoints and promotion are measured on."""
+        first = self.train_tracks[0]
+        return first if first in self.test_tracks else self.test_tracks[0]
+
+    def to_json(self) -> dict[str, Any]:
+        """Plain JSON data (what config.json, checkpoints and worker messages carry)."""
+        return self.model_dump(mode="json")
+
+    def digest(self) -> str:
+        """Short hash of the spec: a resumed tournament compares it to tell a changed file."""
+        text = json.dumps(self.to_json(), sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any], source: str) -> RunSpec:
+        """A spec read back from a file; UserInputError naming ``source`` when it is not one."""
+        try:
+            return cls.model_validate(dict(data))
+        except ValidationError as err:
+            raise UserInputError(f"{source}: not a run specification: {_problems(err)}") from None
+
+
+def _problems(err: ValidationError) -> str:
+    return "; ".join(
+        f"{'.'.join(str(p) for p in e['loc']) or 'value'}: {e['msg']}" for e in err.errors()
+    )
+
+
+def build_run_spec(
+    *,
+    variant: str,
+    overrides: Mapping[str, Any] | None = None,
+    train_tracks: list[str] | tuple[str, ...],
+    test_tracks: list[str] | tuple[str, ...] | None = None,
+    reference: str = "centre",
+    lac: bool = False,
+    schedule: Mapping[str, Any] | None = None,
+    env_overrides: Mapping[str, Any] | EnvSettings | None = None,
+    seed: int = 0,
+    device: str = "auto",
+    threads: int = 1,
+    track_base_dir: Path | None = None,
+    source: str = "run settings",
+) -> RunSpec:
+    """The one way to make a RunSpec; every problem is a UserInputError naming ``source``.
+
+    ``schedule`` holds keys of :class:`Schedule` (unset ones keep its defaults);
+    ``env_overrides`` keys of ``sim.config.EnvSettings``. An env override of a key the run owns
+    (``lac``, ``max_steps``, ...) is refused with where to set it instead. Track names are checked
+    (not built) by ``sim.catalog.check_track_name``; relative file paths resolve against
+    ``track_base_dir``.
+    """
+    agent = get_variant(variant, dict(overrides or {}))
+    env = _env_settings(env_overrides, source)
+    unknown = sorted(set(schedule or {}) - set(SCHEDULE_KEYS))
+    if unknown:
+        raise UserInputError(
+            f"{source}: unknown schedule key(s) {', '.join(unknown)}; allowed keys: "
+            f"{', '.join(SCHEDULE_KEYS)}"
+        )
+    trains = [check_track_name(t, track_base_dir) for t in train_tracks]
+    tests = [check_track_name(t, track_base_dir) for t in (test_tracks or [])] or list(trains)
+    try:
+        return RunSpec(
+            variant=variant, agent=agent, env=env, train_tracks=tuple(trains),
+            test_tracks=tuple(tests), reference=reference, lac=lac,
+            schedule=Schedule(**dict(schedule or {})), seed=seed, device=device, threads=threads,
+        )  # fmt: skip
+    except ValidationError as err:
+        raise UserInputError(f"{source}: {_problems(err)}") from None
+
+
+def _env_settings(overrides: Mapping[str, Any] | EnvSettings | None, source: str) -> EnvSettings:
+    if isinstance(overrides, EnvSettings):
+        return overrides
+    owned = sorted(set(overrides or {}) & set(RUN_OWNED_KEYS))
+    if owned:
+        where = "; ".join(f"'{k}' is set by {RUN_OWNED_HINTS[k]}" for k in owned)
+        raise UserInputError(f"{source}: env override(s) of run settings: {where}")
+    return EnvSettings.parse(overrides, f"{source}: env overrides")

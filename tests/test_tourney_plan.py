@@ -1,0 +1,120 @@
+"""The plan builds every job's run specification in the parent: settings land where they belong,
+and every bad value (env overrides, tracks, promoted variants) is an error at its line before
+anything is written, for ``run`` and ``run --dry-run`` alike."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from formula_tourney.cli import main
+from formula_tourney.errors import UserInputError
+from formula_tourney.tourney.api import plan_tournament, run_tournament
+from formula_tourney.training.spec import RunSpec
+
+REPO = Path(__file__).resolve().parents[1]
+
+BASE = """\
+name = "plan"
+seed_base = 7
+
+[defaults]
+episodes = 3
+test_max_steps = 77
+env_overrides = {env}
+
+[[parts]]
+name = "p1"
+entrants = ["WIN1", "PER40k"]
+train_tracks = [{track}]
+setups = [{{ reference = "centre", lac = true }}]
+
+[[parts]]
+name = "p2"
+promoted_from = "p1"
+train_tracks = ["oval"]
+{p2}
+"""
+
+
+def write(tmp_path: Path, env: str = "{}", track: str = '"oval"', p2: str = "") -> Path:
+    path = tmp_path / "plan.toml"
+    path.write_text(BASE.format(env=env, track=track, p2=p2), encoding="utf-8")
+    return path
+
+
+def line_of(path: Path, needle: str) -> int:
+    lines = path.read_text(encoding="utf-8").splitlines()
+    return next(i for i, line in enumerate(lines, start=1) if needle in line)
+
+
+def test_settings_go_to_their_owners(tmp_path: Path) -> None:
+    """Schedule from [defaults], LAC from the setup, env keys into spec.env, seed_base + n, and
+    a relative track path resolved against the tournament file's folder."""
+    shutil.copy(REPO / "formula_tourney/sim/tracks/oval.toml", tmp_path / "mine.toml")
+    path = write(tmp_path, env="{ slow_patience_steps = 5 }", track='"mine.toml"',
+                 p2="seeds = 2")
+    planner, planned, _root = plan_tournament(path, tmp_path / "res")
+    job = planned[0].jobs[0]
+    spec = RunSpec.from_json(job.spec, "job")
+    assert spec.schedule.episodes == 3 and spec.schedule.test_max_steps == 77
+    assert spec.lac is True and spec.reference == "centre"
+    assert spec.env.slow_patience_steps == 5 and spec.env.slow_penalty == 100.0
+    assert spec.seed == 7
+    assert spec.train_tracks == (str((tmp_path / "mine.toml").resolve()),)
+    assert job.config_hash == spec.digest()
+    second = planner.jobs(1, ["WIN1"])[1]
+    assert second.spec["seed"] == 8 and second.job_id == "p2/WIN1-MOT/seed-1"
+    assert not (tmp_path / "res").exists()
+
+
+@pytest.mark.parametrize(
+    ("env", "hint"),
+    [
+        ("{ lac = false }", "'lac' is a run setting, not an env override: set it with the "
+         "setup's lac"),
+        ("{ max_steps = 50 }", "set it with max_steps (training) and test_max_steps (tests)"),
+    ],
+)
+def test_env_override_of_a_run_setting_is_refused(tmp_path: Path, env: str, hint: str) -> None:
+    """Bug 2: such an override used to win silently over the setup's LAC and test_max_steps."""
+    path = write(tmp_path, env=env)
+    with pytest.raises(UserInputError) as info:
+        run_tournament(path, results_dir=tmp_path / "res", dry_run=True)
+    text = str(info.value)
+    assert f"{path}:{line_of(path, 'env_overrides')}: defaults.env_overrides: " in text, text
+    assert hint in text, text
+
+
+@pytest.mark.parametrize(
+    ("edit", "needle", "expected"),
+    [
+        ({"env": "{ slow_patience_step = 5 }"}, "env_overrides",
+         "defaults.env_overrides.slow_patience_step: unknown key; allowed keys: "
+         "lac_distances_m, control_period_s"),
+        ({"env": "{ slow_patience_steps = 0 }"}, "env_overrides",
+         "defaults.env_overrides.slow_patience_steps: Input should be greater than or equal to 1"),
+        ({"track": '"gen-99999999999"'}, "train_tracks = [\"gen-",
+         "parts[0].train_tracks: track 'gen-99999999999': seed 99999999999 is out of range"),
+        ({"p2": "variant_overrides = { batch_size = 50000 }"}, "variant_overrides",
+         "parts[1].variant_overrides: "),
+    ],
+)
+@pytest.mark.parametrize("dry_run", [False, True])
+def test_bad_values_exit_2_before_anything_is_written(
+    tmp_path: Path, capsys: pytest.CaptureFixture, edit: dict, needle: str, expected: str,
+    dry_run: bool,
+) -> None:
+    """Bug 3: these ran, wrote the index and job folders, and failed in every worker. The last
+    case can only reach p2 by promotion (PER40k's buffer is smaller than the batch)."""
+    path = write(tmp_path, **edit)
+    results = tmp_path / "res"
+    with pytest.raises(SystemExit) as info:
+        main(["run", str(path), "--results", str(results), *(["--dry-run"] if dry_run else [])])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert f"error: {path}:{line_of(path, needle)}: {expected}" in err, err
+    assert "Traceback" not in err
+    assert not results.exists()
