@@ -56,7 +56,7 @@ def test_adopted_target_bootstraps_on_truncation_not_termination() -> None:
     buf.add(s[0], np.zeros(3), 1.0, s[1], terminated=True, truncated=False)
     buf.add(s[2], np.zeros(3), 2.0, s[3], terminated=False, truncated=True)
     b = buf.gather(np.array([0, 1]), np.ones(2))
-    t = {k: torch.from_numpy(v) for k, v in b._asdict().items()}
+    t = {k: torch.from_numpy(v) for k, v in b._asdict().items() if v is not None}
     y = agent.target(t["rewards"], t["discounts"], t["next_observations"], t["next_action_windows"])
     with torch.no_grad():
         s3 = torch.from_numpy(s[3])[None, None]

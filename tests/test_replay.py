@@ -11,6 +11,7 @@ from formula_tourney.agents.replay import (
     PrioritizedReplayBuffer,
     ReplayBuffer,
     SumTree,
+    make_buffer,
 )
 
 D = 2
@@ -157,3 +158,19 @@ def test_per_new_transitions_get_max_priority() -> None:
     buf.update_priorities(np.array([0]), np.array([3.0]), np.zeros((1, 3)))
     _fill(buf, [([5, 6], [0], "terminated")])
     assert buf.tree.values(np.array([2]))[0] == pytest.approx(9.0 + buf.eps)
+
+
+def test_laned_buffer_samples_only_stored_slots_and_per_gives_new_rows_max_priority() -> None:
+    buf = make_buffer(40, 2, 3, prioritized=False, gamma=0.99, n_step=1, window=1,
+                      bootstrap_on_truncation=True, seed=0, lanes=4)  # fmt: skip
+    lanes = np.array([0, 2])  # lanes 1 and 3 stay empty
+    for k in range(3):
+        buf.add_cars(lanes, np.full((2, 2), k), np.zeros((2, 3)), np.ones(2), np.zeros((2, 2)),
+                     np.zeros(2, bool), np.zeros(2, bool))  # fmt: skip
+    assert len(buf) == 6
+    assert set(buf.sample(500).indices.tolist()) == {0, 1, 2, 20, 21, 22}
+    per = PrioritizedReplayBuffer(40, 2, 3, lanes=4, alpha=1.0, seed=0)
+    per.add_cars(np.array([1, 3]), np.zeros((2, 2)), np.zeros((2, 3)), np.ones(2),
+                 np.zeros((2, 2)), np.zeros(2, bool), np.zeros(2, bool))  # fmt: skip
+    np.testing.assert_array_equal(per.tree.values(np.array([10, 30, 0])), [1.0, 1.0, 0.0])
+    assert set(per.sample(64).indices.tolist()) == {10, 30}

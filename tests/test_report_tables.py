@@ -224,3 +224,27 @@ def test_terminal_table_never_cuts_numbers_on_a_narrow_console(
     text = console.export_text()
     assert "…" not in text
     assert "27.10" in text  # win1's bLT on the oval, computed by hand above
+
+
+def test_runs_beyond_the_paper_are_labelled_in_every_table(tmp_path: Path) -> None:
+    """A run's config.json says what it adds to the paper (another family, demos, cars); its
+    row carries that label, so a replication is never mistaken for an improvement."""
+    import json
+
+    from formula_tourney.results.folder import JobFolder
+
+    root = build_tournament(tmp_path)
+    data = load_tournament(root)
+    sac_jobs = data.jobs.loc[data.jobs["variant"] == "win1", "job_id"].tolist()
+    for job_id in sac_jobs:
+        folder = JobFolder(data.job_dir(job_id))
+        doc = json.loads(folder.config_path.read_text())
+        doc["beyond_paper"] = ["demos (follower on mincurv)"]
+        folder.config_path.write_text(json.dumps(doc))
+    relabelled = load_tournament(root)
+    assert relabelled.beyond_paper[sac_jobs[0]] == ["demos (follower on mincurv)"]
+    tables = {t.key: t for t in build_tables(Context.build(relabelled))}
+    label = "win1 (beyond paper: demos (follower on mincurv))"
+    assert label in [r["label"] for r in tables["table1"].rows]
+    assert "win1" not in [r["label"] for r in tables["table1"].rows]
+    assert _record(tables["table1"], "part1: oval MOT", label)["bLT"] == pytest.approx(27.1)

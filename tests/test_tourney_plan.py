@@ -118,3 +118,42 @@ def test_bad_values_exit_2_before_anything_is_written(
     assert f"error: {path}:{line_of(path, needle)}: {expected}" in err, err
     assert "Traceback" not in err
     assert not results.exists()
+
+
+DEMO_FILE = """\
+name = "demo-plan"
+
+[variants.WIN1-demo]
+base = "WIN1"
+demos = {{ laps = 2, line = "centre", bc_steps = 10 }}
+
+[[parts]]
+name = "p1"
+entrants = ["WIN1", "WIN1-demo", "SAC"]
+train_tracks = ["oval"]
+cars = {cars}
+"""
+
+
+def test_demos_and_cars_reach_the_run_spec_and_are_labelled(tmp_path: Path) -> None:
+    path = tmp_path / "demo.toml"
+    path.write_text(DEMO_FILE.format(cars=2), encoding="utf-8")
+    _planner, planned, _root = plan_tournament(path, tmp_path / "res")
+    specs = {job.meta["variant"]: RunSpec.from_json(job.spec, job.job_id)
+             for job in planned[0].jobs}
+    assert specs["WIN1"].demos is None and specs["WIN1"].schedule.cars == 2
+    assert specs["WIN1-demo"].demos.laps == 2 and specs["WIN1-demo"].demos.bc_steps == 10
+    assert specs["WIN1"].beyond_paper() == ["2 cars"]
+    assert specs["WIN1-demo"].beyond_paper() == ["demos (follower on centre)", "2 cars"]
+    assert specs["SAC"].beyond_paper() == ["SAC", "2 cars"]
+
+
+def test_bad_demo_or_car_settings_fail_at_their_line(tmp_path: Path) -> None:
+    path = tmp_path / "demo.toml"
+    path.write_text(DEMO_FILE.format(cars=0), encoding="utf-8")
+    with pytest.raises(UserInputError, match=rf"demo.toml:{line_of(path, 'cars =')}: "):
+        plan_tournament(path, tmp_path / "res")
+    path.write_text(DEMO_FILE.format(cars=1).replace("laps = 2", "lapz = 2"), encoding="utf-8")
+    with pytest.raises(UserInputError, match=rf"demo.toml:{line_of(path, 'lapz')}: .*lapz"):
+        plan_tournament(path, tmp_path / "res")
+    assert not (tmp_path / "res").exists()

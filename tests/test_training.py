@@ -56,7 +56,7 @@ def test_train_writes_the_job_folder_contract(tmp_path, ring_tracks) -> None:
     summary = loop.train(_cfg(), tmp_path / "job", calls.append)
     job = tmp_path / "job"
     assert json.loads((job / "config.json").read_text()) == {
-        "schema_version": SCHEMA_VERSION, "run_spec": _cfg().to_json()}
+        "schema_version": SCHEMA_VERSION, "run_spec": _cfg().to_json(), "beyond_paper": []}
     eps = pd.read_parquet(job / "episodes.parquet")
     assert list(eps.columns) == [
         "episode", "track", "reward", "steps", "env_steps", "updates", "laps", "best_lap_s",
@@ -259,3 +259,44 @@ def test_best_lap_trace_and_checkpoint_follow_the_metrics_clean_lap(
     assert trace.time_s.tolist() == [31.0] and trace.s_m.tolist() == [1.0]
     best = torch.load(tmp_path / "job" / "checkpoints" / "best.pt", weights_only=True)
     assert best["extra"]["best_lap_s"] == 31.0 and best["extra"]["episode"] == 3
+
+
+def test_run_envs_draw_the_reference_line_for_the_runs_own_car(ring_tracks, monkeypatch) -> None:
+    """Issue 10, item 2: replay computed the recorded line without the car overrides."""
+    seen: list[object] = []
+
+    def offsets(track, kind, car=None):  # type: ignore[no-untyped-def]
+        seen.append((kind, car.mu))
+        return np.zeros(track.n)
+
+    monkeypatch.setattr(run_envs, "reference_offsets", offsets)
+    spec = build_run_spec(variant="WIN1", train_tracks=["ringA"], reference="recorded",
+                          env_overrides={"car": {"mu": 1.3}})  # fmt: skip
+    envs = run_envs.RunEnvs(spec, extra_tracks=["ringB"])
+    assert seen == [("recorded", 1.3), ("recorded", 1.3)]
+    line = envs.config("ringB", test=True).reference_line
+    assert np.array_equal(line, np.zeros(envs.tracks["ringB"].n))
+
+
+def test_cli_eval_and_replay_refuse_bad_checkpoints_in_one_line(tmp_path, capsys) -> None:
+    from formula_tourney.agents.ddpg import DDPGAgent, save_checkpoint
+    from formula_tourney.cli import main
+
+    agent = DDPGAgent(get_variant("WIN1", SMALL), 29, seed=0)
+    old = save_checkpoint(agent, tmp_path / "old.pt", extra={"train_config": {"lac": False}})
+    (tmp_path / "junk.pt").write_bytes(b"\x00garbage")
+    for args in (["eval", str(old)], ["eval", str(tmp_path / "junk.pt")],
+                 ["replay", str(old), "--track", "oval", "--gif", str(tmp_path / "r.gif")]):
+        with pytest.raises(SystemExit) as exc:
+            main(args)
+        assert exc.value.code == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("error: checkpoint") and "\n" not in err and "Traceback" not in err
+    assert not (tmp_path / "r.gif").exists()
+
+
+def test_run_spec_says_what_goes_beyond_the_paper(ring_tracks) -> None:
+    assert build_run_spec(variant="PER1M", train_tracks=["ringA"]).beyond_paper() == []
+    spec = build_run_spec(variant="SAC", train_tracks=["ringA", "ringB"],
+                          schedule={"cars": 4}, demos={"laps": 1, "line": "centre"})
+    assert spec.beyond_paper() == ["SAC", "demos (follower on centre)", "4 cars"]

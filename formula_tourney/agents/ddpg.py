@@ -1,4 +1,4 @@
-"""The one DDPG update rule for every variant, written to be read next to the paper's equations.
+"""The one update rule for every variant (DDPG, and TD3 and SAC as its settings), as equations.
 
 Paper, "Algorithms" (numbering ours):
 
@@ -12,6 +12,22 @@ Paper, "Algorithms" (numbering ours):
 Variants differ only by configuration: the window ``w`` (WIN) is in the observation tensors' shape,
 the LSTM critic is a different critic module fed the window's past actions, n-step (MS) arrives as
 the batch's summed rewards and discounts, PER as weights plus a priority update.
+
+Beyond the paper, ``cfg.algorithm`` turns the same update into TD3 or SAC (Stable-Baselines3's
+lesson: DDPG is TD3 with one critic and no delay). Both use twin critics Q_1, Q_2; replay,
+windows, n-step, PER weights and priorities (from Q_1) and the adopted target stay as above:
+
+    TD3 (1')  y_i = r^(n) + d_i min_j Q'_j(s', clip(mu'(s') + clip(e, -c, c), box)), e ~ N(0, s^2)
+        (2')  L = sum_j 1/N sum_i w_i (y_i - Q_j(s_i, a_i))^2
+        (3')  the actor ascends Q_1(s, mu(s)); (3') and (4) only every policy_delay-th update
+    SAC (1'') y_i = r^(n) + d_i (min_j Q'_j(s', a') - alpha log pi(a'|s')),  a' ~ pi(.|s')
+        (3'') J = 1/N sum_i alpha log pi(a~_i|s_i) - min_j Q_j(s_i, a~_i), a~_i ~ pi(.|s_i)
+              reparameterised; (4) moves the critics' targets only (SAC has no target actor)
+        (6)   L(alpha) = -1/N sum_i log alpha (log pi(a~_i|s_i) + H_target)
+
+Both losses are taken at the same critic parameters for every algorithm (as OpenAI Baselines'
+DDPG; TD3's and SAC's reference code take the actor loss after the critic step), and SAC's alpha
+is the value before this update's step in (1''), (3'') and (6), as in SB3.
 """
 
 from __future__ import annotations
@@ -27,7 +43,15 @@ import torch
 from torch import nn
 
 from formula_tourney.agents.mlp_update import MLPUpdate
-from formula_tourney.agents.networks import Actor, GreedyAct, LSTMCritic, MLPCritic
+from formula_tourney.agents.networks import (
+    Actor,
+    GreedyAct,
+    LSTMCritic,
+    MLPCritic,
+    SquashedGaussianActor,
+    TwinCritic,
+)
+from formula_tourney.agents.noise import ACTION_HIGH, ACTION_LOW
 from formula_tourney.agents.replay import ReplayBatch
 from formula_tourney.agents.variants import AgentConfig
 from formula_tourney.errors import UserInputError
@@ -158,7 +182,10 @@ def resolve_device(device: str) -> torch.device:
 
 
 class DDPGAgent:
-    """Actor, critic, their targets and optimizers; ``update`` is the whole learning rule."""
+    """Actor, critic, their targets and optimizers; ``update`` is the whole learning rule.
+
+    ``cfg.algorithm`` picks DDPG (the paper's), TD3 or SAC; the class stays the one agent.
+    """
 
     def __init__(
         self,
@@ -176,11 +203,14 @@ class DDPGAgent:
         self.device = resolve_device(device)
         # LSTM variants keep a plain actor on the current observation (paper: LSTM actor unstable)
         self.actor_window = 1 if cfg.lstm_critic else cfg.window
-        self.actor = Actor(
+        actor_cls = SquashedGaussianActor if cfg.algorithm == "sac" else Actor
+        self.actor: nn.Module = actor_cls(
             obs_dim, self.actor_window, cfg.hidden, cfg.throttle_bias_init, cfg.brake_bias_init
         ).to(self.device)
         self.critic: nn.Module
-        if cfg.lstm_critic:
+        if cfg.twin_critics:  # TD3, SAC (variants.py refuses the LSTM critic for them)
+            self.critic = TwinCritic(obs_dim, action_dim, cfg.window, cfg.hidden)
+        elif cfg.lstm_critic:
             self.critic = LSTMCritic(
                 obs_dim,
                 action_dim,
@@ -192,10 +222,14 @@ class DDPGAgent:
         else:
             self.critic = MLPCritic(obs_dim, action_dim, cfg.window, cfg.hidden)
         self.critic.to(self.device)
-        self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
+        # SAC bootstraps from its current policy: no target actor
+        self.actor_target: nn.Module | None = None
+        if cfg.algorithm != "sac":
+            self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
         self._online_flat = _flat_views([self.actor, self.critic])
-        self._target_flat = _flat_views([self.actor_target, self.critic_target])
+        targets = [m for m in (self.actor_target, self.critic_target) if m is not None]
+        self._target_flat = _flat_views(targets)
         self._actor_params = list(self.actor.parameters())
         self._critic_params = list(self.critic.parameters())
         # one gradient buffer laid out like the online weights, bound as every parameter's .grad:
@@ -213,13 +247,45 @@ class DDPGAgent:
             self._critic_params, self._online_flat[n_actor:], self._grad_flat[n_actor:],
             lr=cfg.critic_lr,
         )  # fmt: skip
-        # the MLP critic's update is written out by hand (mlp_update.py); the LSTM's uses autograd
+        # what the soft update (4) moves the targets towards: all online weights, or (SAC, no
+        # target actor) the critic's alone
+        self._target_source = self._online_flat
+        if self.actor_target is None:
+            self._target_source = self._online_flat[n_actor:]
+        # TD3 steps the actor and the targets every policy_delay-th update; DDPG and SAC every one
+        self._policy_delay = cfg.policy_delay if cfg.algorithm == "td3" else 1
+        self._last_actor_loss = 0.0  # reported on TD3's critic-only updates
+        # TD3's smoothing noise and SAC's samples come from the agent's own generator, so the
+        # seed alone fixes them and checkpoints and copies carry the stream
+        self._generator: torch.Generator | None = None
+        if cfg.algorithm != "ddpg":
+            self._generator = torch.Generator(device=self.device)
+            self._generator.manual_seed(
+                seed if seed is not None else int(torch.randint(2**62, ()).item())
+            )
+        self._action_low = torch.as_tensor(ACTION_LOW, device=self.device)
+        self._action_high = torch.as_tensor(ACTION_HIGH, device=self.device)
+        # SAC's temperature: log alpha, its own gradient buffer and Adam
+        self.log_alpha: torch.Tensor | None = None
+        self.alpha_opt: FusedAdam | None = None
+        self.target_entropy = cfg.entropy_target(self.action_dim)
+        if cfg.algorithm == "sac":
+            self.log_alpha = torch.full(
+                (1,), float(np.log(cfg.alpha_init)), device=self.device, requires_grad=True
+            )
+            self.log_alpha.grad = torch.zeros_like(self.log_alpha)
+            self.alpha_opt = FusedAdam(
+                [self.log_alpha], self.log_alpha, self.log_alpha.grad, lr=cfg.alpha_lr
+            )
+        # the MLP critic's update is written out by hand (mlp_update.py); the LSTM's, and TD3's
+        # and SAC's twin critics, use autograd
         self._mlp_update: MLPUpdate | None = None
-        if isinstance(self.critic, MLPCritic):
+        if isinstance(self.critic, MLPCritic) and isinstance(self.actor, Actor):
+            assert self.actor_target is not None
             self._mlp_update = MLPUpdate(
                 self.actor, self.critic, self.actor_target, self.critic_target
             )
-        self._greedy = GreedyAct(self.actor)
+        self._greedy = GreedyAct(self.actor) if isinstance(self.actor, Actor) else None
         self.updates = 0
         self.last_priorities: np.ndarray | None = None
 
@@ -231,12 +297,36 @@ class DDPGAgent:
             clone = DDPGAgent(self.cfg, self.obs_dim, self.action_dim, device=str(self.device))
         clone.load_state_dict(self.state_dict())
         clone.last_priorities = copy.deepcopy(self.last_priorities, memo)
+        clone._last_actor_loss = self._last_actor_loss
         return clone
 
     # --- acting ---------------------------------------------------------------------------------
     def act(self, obs_window: np.ndarray) -> np.ndarray:
-        """Greedy action mu(s) for one window ``(w, obs_dim)`` (exploration is added outside)."""
-        return self._greedy(obs_window)
+        """Greedy action for one window ``(w, obs_dim)``: mu(s), or SAC's squashed mean
+        ``c + k tanh(m(s))`` (exploration is added outside, or by :meth:`explore`)."""
+        if self._greedy is not None:
+            return self._greedy(obs_window)
+        with torch.no_grad():
+            return self.actor(self._window_tensor(obs_window))[0].cpu().numpy()
+
+    def explore(self, obs_window: np.ndarray) -> np.ndarray:
+        """The training loop's action for one window: SAC's sample ``a ~ pi(.|s)``; for DDPG and
+        TD3 the greedy action, to which the loop adds its noise (``cfg.uses_action_noise``)."""
+        if not isinstance(self.actor, SquashedGaussianActor):
+            return self.act(obs_window)
+        with torch.no_grad():
+            action, _ = self.actor.sample(self._window_tensor(obs_window), self._generator)
+        return action[0].cpu().numpy()
+
+    def _window_tensor(self, obs_window: np.ndarray) -> torch.Tensor:
+        """One window ``(w, obs_dim)`` as a batch of one ``(1, w, obs_dim)`` on the device."""
+        x = torch.as_tensor(obs_window, dtype=torch.float32, device=self.device)
+        return x.reshape(1, -1, self.obs_dim)
+
+    @property
+    def alpha(self) -> torch.Tensor | None:
+        """SAC's temperature ``exp(log alpha)`` (detached); None for DDPG and TD3."""
+        return None if self.log_alpha is None else self.log_alpha.detach().exp()
 
     # --- learning -------------------------------------------------------------------------------
     _MLP_FIELDS = ("observations", "actions", "rewards", "next_observations", "discounts",
@@ -259,9 +349,24 @@ class DDPGAgent:
         next_observations: torch.Tensor,
         next_action_windows: torch.Tensor,
     ) -> torch.Tensor:
-        """Eq. (1): y = r^(n) + d Q'(s', mu'(s')), with d = 0 where the target is y = r."""
+        """Eq. (1): y = r^(n) + d Q'(s', mu'(s')), with d = 0 where the target is y = r; TD3's
+        (1') and SAC's (1'') draw their noise from the agent's generator."""
+        if isinstance(self.actor, SquashedGaussianActor):  # (1'') a' ~ pi(.|s'), entropy bonus
+            assert self.log_alpha is not None
+            next_action, log_pi = self.actor.sample(next_observations, self._generator)
+            q_next = self.critic_target(next_observations, next_action).amin(0)
+            return rewards + discounts * (q_next - self.log_alpha.exp() * log_pi)
+        assert self.actor_target is not None
         next_action = self.actor_target(next_observations)
+        if self.cfg.algorithm == "td3":  # (1') target policy smoothing, kept inside the box
+            cfg = self.cfg
+            noise = torch.randn(next_action.shape, generator=self._generator,
+                                device=next_action.device) * cfg.policy_noise  # fmt: skip
+            noise = noise.clamp(-cfg.noise_clip, cfg.noise_clip)
+            next_action = torch.clamp(next_action + noise, self._action_low, self._action_high)
         q_next = self.critic_target(next_observations, next_action, next_action_windows)
+        if self.cfg.twin_critics:  # clipped double-Q
+            q_next = q_next.amin(0)
         return rewards + discounts * q_next
 
     def update(self, batch: ReplayBatch, per_buffer: Any | None = None) -> UpdateInfo:
@@ -280,7 +385,7 @@ class DDPGAgent:
         self.critic_opt.step()
         self.actor_opt.step()
         with torch.no_grad():  # (4)
-            self._target_flat.lerp_(self._online_flat, cfg.tau)
+            self._target_flat.lerp_(self._target_source, cfg.tau)
         if cfg.prioritized and per_buffer is not None:
             self.last_priorities = per_buffer.update_priorities(
                 batch.indices, result.td.cpu().numpy(), result.grad_a.cpu().numpy()
@@ -294,12 +399,17 @@ class DDPGAgent:
         )  # fmt: skip
 
     def _update_autograd(self, batch: ReplayBatch, per_buffer: Any | None = None) -> UpdateInfo:
-        """``update`` through autograd: the LSTM critic's, and the reference for the MLP's."""
+        """``update`` through autograd: the LSTM critic's, TD3's and SAC's, and the reference
+        for the MLP's. With twin critics ``q`` and ``td`` are ``(2, B)``, row 0 for Q_1."""
         cfg = self.cfg
         b = self._tensors(batch)
+        obs = b["observations"]
         past_actions = b["action_windows"][:, :-1]  # empty unless the LSTM critic reads them
+        sac = isinstance(self.actor, SquashedGaussianActor)
+        # TD3 steps the actor and the targets on the d-th, 2d-th, ... update (Fujimoto's order)
+        step_actor = (self.updates + 1) % self._policy_delay == 0
 
-        # (1) target: r^(n) + d * Q'(s', mu'(s')); d = 0 is y = r (premature end)
+        # (1) target: r^(n) + d * Q'(s', mu'(s')); d = 0 is y = r (premature end); (1'), (1'')
         y = self.target(b["rewards"], b["discounts"], b["next_observations"],
                         b["next_action_windows"])  # fmt: skip
 
@@ -307,40 +417,68 @@ class DDPGAgent:
         # at the same critic parameters (as OpenAI Baselines' DDPG); sharing the critic's state
         # path between Q(s, a) and Q(s, mu(s)) skips ~20% of the update's FLOPs
         actions = b["actions"].requires_grad_(cfg.prioritized)
-        q, q_pi = self.critic.q_pair(
-            b["observations"], actions, self.actor(b["observations"]), past_actions
-        )
+        if step_actor:
+            if sac:  # a~ ~ pi(.|s), reparameterised: (3'') reaches the actor through a~
+                policy_action, log_pi = self.actor.sample(obs, self._generator)
+            else:
+                policy_action = self.actor(obs)
+            q, q_pi = self.critic.q_pair(obs, actions, policy_action, past_actions)
+        else:  # TD3 between actor steps: the critics alone
+            q = self.critic(obs, actions, past_actions)
         td = y - q
-        critic_loss = (b["weights"] * td.square()).mean()
-        actor_loss = -q_pi.mean()
+        critic_loss = (b["weights"] * td.square()).mean()  # twins: the mean of L(Q_1), L(Q_2)
+        q_1, td_1 = (q[0], td[0]) if cfg.twin_critics else (q, td)
         if cfg.prioritized:  # (5) needs grad_a Q(s_i, a_i) at the stored action
-            (grad_a,) = torch.autograd.grad(q.sum(), actions, retain_graph=True)
+            (grad_a,) = torch.autograd.grad(q_1.sum(), actions, retain_graph=True)
         self._grad_flat.zero_()  # backward accumulates into the bound .grad views
         # each loss reaches only its own network's weights (no critic dW from the actor loss)
         # (the LSTM critic runs both sequences in one call, so its graph is shared and kept)
-        critic_loss.backward(inputs=self._critic_params, retain_graph=self.critic.recurrent)
-        actor_loss.backward(inputs=self._actor_params)
+        # (2') twins: each critic descends its own loss, so the sum of both
+        critic_objective = 2.0 * critic_loss if cfg.twin_critics else critic_loss
+        critic_objective.backward(inputs=self._critic_params, retain_graph=self.critic.recurrent)
+        if step_actor:
+            if sac:  # (3'') and (6), with alpha as it was before this update
+                assert self.log_alpha is not None and self.log_alpha.grad is not None
+                alpha = self.log_alpha.detach().exp()
+                actor_loss = (alpha * log_pi - q_pi.amin(0)).mean()
+                alpha_loss = -(self.log_alpha * (log_pi.detach() + self.target_entropy)).mean()
+                self.log_alpha.grad.zero_()
+                alpha_loss.backward(inputs=[self.log_alpha])
+            elif cfg.twin_critics:  # (3') TD3's actor follows Q_1
+                actor_loss = -q_pi[0].mean()
+            else:
+                actor_loss = -q_pi.mean()
+            actor_loss.backward(inputs=self._actor_params)
+            self._last_actor_loss = float(actor_loss.detach())
+        # every gradient is taken before any step: the actor's runs through the critic's weights
         self.critic_opt.step()
-        self.actor_opt.step()
-
-        # (4) soft target update over all weights at once: theta' += tau (theta - theta')
-        with torch.no_grad():
-            self._target_flat.lerp_(self._online_flat, cfg.tau)
+        if step_actor:
+            self.actor_opt.step()
+            if self.alpha_opt is not None:
+                self.alpha_opt.step()
+            # (4) soft target update over all weights at once: theta' += tau (theta - theta')
+            with torch.no_grad():
+                self._target_flat.lerp_(self._target_source, cfg.tau)
 
         if cfg.prioritized and per_buffer is not None:
             self.last_priorities = per_buffer.update_priorities(
-                batch.indices, td.detach().cpu().numpy(), grad_a.cpu().numpy()
+                batch.indices, td_1.detach().cpu().numpy(), grad_a.cpu().numpy()
             )
         self.updates += 1
         return UpdateInfo(
-            critic_loss=float(critic_loss.detach()), actor_loss=float(actor_loss.detach()),
+            critic_loss=float(critic_loss.detach()), actor_loss=self._last_actor_loss,
             q_mean=float(q.detach().mean()), td_abs_mean=float(td.detach().abs().mean()),
         )  # fmt: skip
 
     # --- persistence ----------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
-        """Everything to resume or evaluate; only tensors and plain types (weights_only loads)."""
-        return {
+        """Everything to resume or evaluate; only tensors and plain types (weights_only loads).
+
+        Keys beyond :data:`CHECKPOINT_KEYS` are the algorithm's (:data:`ALGORITHM_CHECKPOINT_KEYS`):
+        the target actor (DDPG, TD3), the noise generator's state (TD3, SAC), log alpha and its
+        Adam (SAC).
+        """
+        state: dict[str, Any] = {
             "format": 1,
             "config": self.cfg.model_dump(mode="json"),
             "obs_dim": self.obs_dim,
@@ -348,19 +486,35 @@ class DDPGAgent:
             "updates": self.updates,
             "actor": self.actor.state_dict(),
             "critic": self.critic.state_dict(),
-            "actor_target": self.actor_target.state_dict(),
-            "critic_target": self.critic_target.state_dict(),
-            "actor_opt": self.actor_opt.state_dict(),
-            "critic_opt": self.critic_opt.state_dict(),
         }
+        if self.actor_target is not None:
+            state["actor_target"] = self.actor_target.state_dict()
+        state["critic_target"] = self.critic_target.state_dict()
+        state["actor_opt"] = self.actor_opt.state_dict()
+        state["critic_opt"] = self.critic_opt.state_dict()
+        if self._generator is not None:
+            state["generator"] = self._generator.get_state()
+            state["last_actor_loss"] = self._last_actor_loss
+        if self.log_alpha is not None and self.alpha_opt is not None:
+            state["log_alpha"] = self.log_alpha.detach().clone()
+            state["alpha_opt"] = self.alpha_opt.state_dict()
+        return state
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.actor.load_state_dict(state["actor"])
         self.critic.load_state_dict(state["critic"])
-        self.actor_target.load_state_dict(state["actor_target"])
+        if self.actor_target is not None:
+            self.actor_target.load_state_dict(state["actor_target"])
         self.critic_target.load_state_dict(state["critic_target"])
         self.actor_opt.load_state_dict(state["actor_opt"])
         self.critic_opt.load_state_dict(state["critic_opt"])
+        if self._generator is not None:
+            self._generator.set_state(state["generator"].cpu())  # CPU bytes on every device
+            self._last_actor_loss = float(state.get("last_actor_loss", 0.0))
+        if self.log_alpha is not None and self.alpha_opt is not None:
+            with torch.no_grad():
+                self.log_alpha.copy_(state["log_alpha"].reshape(self.log_alpha.shape))
+            self.alpha_opt.load_state_dict(state["alpha_opt"])
         self.updates = int(state.get("updates", 0))
 
 
@@ -377,9 +531,15 @@ def save_checkpoint(
 
 
 CHECKPOINT_KEYS = (
-    "format", "config", "obs_dim", "action_dim", "actor", "critic", "actor_target",
-    "critic_target", "actor_opt", "critic_opt",
+    "format", "config", "obs_dim", "action_dim", "actor", "critic", "critic_target", "actor_opt",
+    "critic_opt",
 )  # fmt: skip
+"""Keys of every agent checkpoint; :data:`ALGORITHM_CHECKPOINT_KEYS` adds each algorithm's."""
+ALGORITHM_CHECKPOINT_KEYS: dict[str, tuple[str, ...]] = {
+    "ddpg": ("actor_target",),
+    "td3": ("actor_target", "generator"),
+    "sac": ("generator", "log_alpha", "alpha_opt"),
+}
 
 
 def load_checkpoint(path: str | Path, device: str = "cpu") -> tuple[DDPGAgent, dict[str, Any]]:
@@ -394,8 +554,9 @@ def load_checkpoint(path: str | Path, device: str = "cpu") -> tuple[DDPGAgent, d
     dev = resolve_device(device)
     try:
         state = torch.load(path, map_location=dev, weights_only=True)
-    except Exception as err:  # corrupt or foreign file
-        raise UserInputError(f"checkpoint {path} cannot be read: {err}") from None
+    except Exception as err:  # corrupt or foreign file; torch's own text runs over many lines
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise UserInputError(f"checkpoint {path} cannot be read: {first}") from None
     if not isinstance(state, dict) or state.get("format") != 1:
         raise UserInputError(f"checkpoint {path} is not a formula-tourney agent checkpoint")
     missing = [k for k in CHECKPOINT_KEYS if k not in state]
@@ -409,6 +570,11 @@ def load_checkpoint(path: str | Path, device: str = "cpu") -> tuple[DDPGAgent, d
         raise UserInputError(f"checkpoint {path} has a bad agent config: {first}") from None
     if obs_dim < 1 or action_dim < 1:
         raise UserInputError(f"checkpoint {path} has bad sizes {obs_dim} x {action_dim}")
+    missing = [k for k in ALGORITHM_CHECKPOINT_KEYS[cfg.algorithm] if k not in state]
+    if missing:
+        raise UserInputError(
+            f"checkpoint {path} is incomplete for {cfg.algorithm}: no {', '.join(missing)}"
+        )
     agent = DDPGAgent(cfg, obs_dim, action_dim, device=str(dev))
     try:
         agent.load_state_dict(state)

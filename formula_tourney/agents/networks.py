@@ -1,4 +1,4 @@
-"""Actor and critics of the DDPG family: deterministic actor, MLP critic, LSTM critic.
+"""Actors and critics: deterministic actor, squashed Gaussian actor, MLP, twin and LSTM critics.
 
 Inputs are observation windows ``(B, w, obs_dim)`` (``w = 1`` for plain DDPG). The actor maps the
 flattened window to (steer, throttle, brake) with tanh on steer (-1..1) and sigmoid on the pedals
@@ -6,16 +6,24 @@ flattened window to (steer, throttle, brake) with tanh on steer (-1..1) and sigm
 the action joins after the first hidden layer. The LSTM critic (paper, "LSTM critic network")
 places its LSTM after the concatenation of the state stream and the action, over the window of
 the last w (state, action) pairs; only the critic is recurrent, as the paper found an LSTM actor
-unstable.
+unstable. Beyond the paper, TD3 and SAC use :class:`TwinCritic` (two MLP critics for clipped
+double-Q) and SAC the :class:`SquashedGaussianActor` (tanh-squashed Gaussian, mapped affinely
+onto the same box).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import torch
 from torch import nn
 
 FINAL_INIT = 3e-3  # Lillicrap et al.: small final layers so initial outputs and Q are near zero
+# the action box as centre + scale * tanh(u): steer in [-1, 1], throttle and brake in [0, 1]
+ACTION_CENTRE = (0.0, 0.5, 0.5)
+ACTION_SCALE = (1.0, 0.5, 0.5)
+LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0  # SAC's clamp of log sigma (Haarnoja et al.'s code, SB3)
 
 
 def _fan_in_init(layer: nn.Linear) -> nn.Linear:
@@ -169,6 +177,116 @@ class MLPCritic(nn.Module):
         q = self.out(torch.relu_(torch.addmm(base, action, w_a))).squeeze(1)
         q_pi = self.out(torch.relu_(torch.addmm(base.detach(), policy_action, w_a))).squeeze(1)
         return q, q_pi
+
+
+class TwinCritic(nn.Module):
+    """Q1 and Q2 for clipped double-Q (TD3, SAC): two independently initialised MLP critics.
+
+    Values are stacked ``(2, B)`` (row 0 is Q1), so the target's ``min`` is one reduction and
+    each critic's loss one term of a sum.
+    """
+
+    recurrent = False
+
+    def __init__(
+        self,
+        obs_dim: int,
+        action_dim: int = 3,
+        window: int = 1,
+        hidden: tuple[int, int] = (400, 300),
+    ) -> None:
+        super().__init__()
+        self.window = window
+        self.q1 = MLPCritic(obs_dim, action_dim, window, hidden)
+        self.q2 = MLPCritic(obs_dim, action_dim, window, hidden)
+
+    def forward(
+        self,
+        obs_window: torch.Tensor,
+        action: torch.Tensor,
+        past_actions: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """``(2, B)``: [Q1(s, a); Q2(s, a)]."""
+        return torch.stack([self.q1(obs_window, action), self.q2(obs_window, action)])
+
+    def q_pair(
+        self,
+        obs_window: torch.Tensor,
+        action: torch.Tensor,
+        policy_action: torch.Tensor,
+        past_actions: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(Q(s, a), Q(s, pi(s)))``, each ``(2, B)``, each critic sharing its state path."""
+        q1, q1_pi = self.q1.q_pair(obs_window, action, policy_action)
+        q2, q2_pi = self.q2.q_pair(obs_window, action, policy_action)
+        return torch.stack([q1, q2]), torch.stack([q1_pi, q2_pi])
+
+
+class SquashedGaussianActor(nn.Module):
+    """SAC's pi(a|s): u ~ N(m(s), sigma(s)^2), a = c + k tanh(u) onto the action box.
+
+    ``c = (0, 0.5, 0.5)`` and ``k = (1, 0.5, 0.5)`` map tanh's (-1, 1) onto steer (-1..1) and the
+    pedals (0..1). The density of ``a`` is that of ``u`` divided by the map's Jacobian
+    ``k (1 - tanh(u)^2)`` per dimension (Haarnoja et al. 2018, appendix C, with the affine factor
+    ``k``). ``forward`` is the greedy action ``c + k tanh(m)``; since ``(1 + tanh(z/2)) / 2 =
+    sigmoid(z)``, halving the pedal bias inits starts the mean pedals where the deterministic
+    actor's start.
+    """
+
+    def __init__(
+        self,
+        obs_dim: int,
+        window: int = 1,
+        hidden: tuple[int, int] = (256, 256),
+        throttle_bias: float = 0.0,
+        brake_bias: float = 0.0,
+    ) -> None:
+        super().__init__()
+        self.window = window
+        self.l1 = _fan_in_init(nn.Linear(obs_dim * window, hidden[0]))
+        self.l2 = _fan_in_init(nn.Linear(hidden[0], hidden[1]))
+        self.mean = _final_init(nn.Linear(hidden[1], 3))
+        self.log_std = _final_init(nn.Linear(hidden[1], 3))
+        with torch.no_grad():
+            self.mean.bias[1] += throttle_bias / 2
+            self.mean.bias[2] += brake_bias / 2
+        self.register_buffer("centre", torch.tensor(ACTION_CENTRE), persistent=False)
+        self.register_buffer("scale", torch.tensor(ACTION_SCALE), persistent=False)
+
+    def distribution(self, obs_window: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(m, log sigma)`` of the pre-squash Gaussian, log sigma clamped to [-20, 2]."""
+        x = obs_window[:, -self.window :].flatten(1)
+        x = torch.relu(self.l2(torch.relu(self.l1(x))))
+        return self.mean(x), self.log_std(x).clamp(LOG_STD_MIN, LOG_STD_MAX)
+
+    def squash(self, u: torch.Tensor) -> torch.Tensor:
+        """``c + k tanh(u)``: a pre-squash sample onto the action box."""
+        return torch.addcmul(self.centre, self.scale, torch.tanh(u))
+
+    def log_prob(self, u: torch.Tensor, mean: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
+        """``log pi(a|s)`` ``(B,)`` of ``a = squash(u)``: the Gaussian's log density of ``u``
+        minus ``sum log(k (1 - tanh(u)^2))``.
+
+        ``log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u))`` stays finite where tanh(u)
+        rounds to +-1 (the identity used by SpinningUp and SB3).
+        """
+        z = (u - mean) * torch.exp(-log_std)
+        gauss = -0.5 * z.square() - log_std - 0.5 * math.log(2 * math.pi)
+        log_det = 2.0 * (math.log(2.0) - u - nn.functional.softplus(-2.0 * u))
+        return (gauss - log_det - torch.log(self.scale.to(u.dtype))).sum(-1)
+
+    def sample(
+        self, obs_window: torch.Tensor, generator: torch.Generator | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """A reparameterised sample ``a ~ pi(.|s)`` ``(B, 3)`` and its ``log pi(a|s)`` ``(B,)``."""
+        mean, log_std = self.distribution(obs_window)
+        eps = torch.randn(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype)
+        u = mean + log_std.exp() * eps
+        return self.squash(u), self.log_prob(u, mean, log_std)
+
+    def forward(self, obs_window: torch.Tensor) -> torch.Tensor:
+        """The greedy action ``c + k tanh(m(s))`` ``(B, 3)``."""
+        return self.squash(self.distribution(obs_window)[0])
 
 
 class LSTMCritic(nn.Module):

@@ -18,6 +18,16 @@ Everything a variant needs is assembled at sample time by vectorised gathers:
   the paper's ``p_i = delta_i^2 + lambda3 |grad_a Q(s_i, a_i)|^2 + eps``. Sampling 256 of 1M took
   ~0.85 ms here against a ~16 ms update, so NumPy is enough (torchrl's compiled PER fails to load
   with torch 2.13; cpprb's n-step returns a wrong next observation after time-limit ends).
+* **Lanes** (N cars per learner): a buffer made with ``lanes=N`` is N circular buffers of
+  ``capacity // N`` slots side by side, one per car; :meth:`ReplayBuffer.add_cars` stores one
+  step of several cars at once. n-step lookahead and windows wrap inside a lane and compare
+  episode ids (unique over all lanes), so a transition's n-step sum and window never mix cars
+  or episodes; uniform sampling draws over every stored slot of every lane. ``lanes=1`` is the
+  one-car buffer, with the same arithmetic as before lanes existed.
+* **Demonstrations** (RLPD, Ball et al. 2023): :class:`DemoMix` draws a fixed number of each
+  batch's rows from a second buffer of demonstration transitions (``ReplayBatch.from_demos``
+  marks them). Under PER only the online rows carry priorities and importance weights; the
+  demonstration rows are drawn uniformly with weight 1 (:class:`OnlinePriorities`).
 """
 
 from __future__ import annotations
@@ -47,10 +57,16 @@ class ReplayBatch(NamedTuple):
     action_windows: np.ndarray  # (B, w, A) float32, a_{t-w+1..t} (LSTM critic)
     next_action_windows: np.ndarray  # (B, w-1, A) float32, a_{t+m-w+1..t+m-1}
     n_steps: np.ndarray  # (B,) int64, m: rewards actually summed
+    from_demos: np.ndarray | None = None  # (B,) bool, rows from the demonstrations (DemoMix)
 
 
 class ReplayBuffer:
-    """Uniform replay over a circular buffer of raw transitions."""
+    """Uniform replay over a circular buffer of raw transitions (``lanes`` of them, one per car).
+
+    With ``lanes > 1`` the capacity is rounded down to a multiple of ``lanes``; lane ``l`` holds
+    slots ``[l * C, (l + 1) * C)`` with ``C = capacity // lanes`` and is written by
+    :meth:`add_cars` only.
+    """
 
     def __init__(
         self,
@@ -63,10 +79,15 @@ class ReplayBuffer:
         window: int = 1,
         bootstrap_on_truncation: bool = True,
         seed: int | None = None,
+        lanes: int = 1,
     ) -> None:
-        if capacity < 1 or n_step < 1 or window < 1:
-            raise ValueError("capacity, n_step and window must be >= 1")
-        self.capacity = int(capacity)
+        if capacity < 1 or n_step < 1 or window < 1 or lanes < 1:
+            raise ValueError("capacity, n_step, window and lanes must be >= 1")
+        if capacity < lanes:
+            raise ValueError(f"capacity {capacity} holds less than one slot per lane ({lanes})")
+        self.lanes = int(lanes)
+        self.lane_capacity = int(capacity) // self.lanes
+        self.capacity = self.lane_capacity * self.lanes
         self.obs_dim = int(obs_dim)
         self.action_dim = int(action_dim)
         self.gamma = float(gamma)
@@ -88,6 +109,13 @@ class ReplayBuffer:
         self._episode_id = 0
         self._episode_step = 0
         self._gamma_pows = self.gamma ** np.arange(self.n_step + 1)
+        # per-lane write position, fill, running episode id and step (lanes > 1 only)
+        self._lane_pos = np.zeros(self.lanes, np.int64)
+        self._lane_size = np.zeros(self.lanes, np.int64)
+        self._lane_episode = np.arange(self.lanes, dtype=np.int64)
+        self._lane_step = np.zeros(self.lanes, np.int64)
+        self._lane_base = np.arange(self.lanes, dtype=np.int64) * self.lane_capacity
+        self._next_episode = self.lanes
 
     def __len__(self) -> int:
         return self.size
@@ -101,7 +129,9 @@ class ReplayBuffer:
         terminated: bool,
         truncated: bool,
     ) -> int:
-        """Store one transition (an end closes its episode); returns its slot."""
+        """Store one transition (an end closes its episode); returns its slot. One lane only."""
+        if self.lanes != 1:
+            raise ValueError("a buffer with lanes is written by add_cars")
         i = self.pos
         self.obs[i] = obs
         self.actions[i] = action
@@ -124,10 +154,74 @@ class ReplayBuffer:
             self._episode_id += 1
             self._episode_step = 0
 
+    def add_cars(
+        self,
+        lanes: np.ndarray,
+        obs: np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        next_obs: np.ndarray,
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+    ) -> np.ndarray:
+        """Store one step of the cars ``lanes`` (distinct lane numbers, one row each); an end
+        closes that car's episode and the next step of its lane starts a new one. Returns the
+        slots written."""
+        lanes = np.asarray(lanes, np.int64)
+        if self.lanes == 1:  # one car: the one-lane path, transition by transition
+            return np.array([self.add(obs[k], actions[k], float(rewards[k]), next_obs[k],
+                                      bool(terminated[k]), bool(truncated[k]))
+                             for k in range(len(lanes))], np.int64)  # fmt: skip
+        slots = self._lane_base[lanes] + self._lane_pos[lanes]
+        self.obs[slots] = obs
+        self.actions[slots] = actions
+        self.rewards[slots] = rewards
+        self.next_obs[slots] = next_obs
+        self.terminated[slots] = terminated
+        self.truncated[slots] = truncated
+        self.episode[slots] = self._lane_episode[lanes]
+        self.step_in_episode[slots] = self._lane_step[lanes]
+        self._lane_pos[lanes] = (self._lane_pos[lanes] + 1) % self.lane_capacity
+        self._lane_size[lanes] = np.minimum(self._lane_size[lanes] + 1, self.lane_capacity)
+        self.size = int(self._lane_size.sum())
+        self._lane_step[lanes] += 1
+        ended = lanes[np.asarray(terminated, bool) | np.asarray(truncated, bool)]
+        if len(ended):
+            self.end_lane_episodes(ended)
+        return slots
+
+    def end_lane_episodes(self, lanes: np.ndarray) -> None:
+        """New episode ids for ``lanes`` (unique over all lanes); lanes with no step yet keep
+        theirs."""
+        lanes = np.asarray(lanes, np.int64)
+        lanes = lanes[self._lane_step[lanes] > 0]
+        k = len(lanes)
+        self._lane_episode[lanes] = np.arange(self._next_episode, self._next_episode + k)
+        self._next_episode += k
+        self._lane_step[lanes] = 0
+
     # --- sampling -------------------------------------------------------------------------------
     def _sample_indices(self, batch_size: int) -> tuple[np.ndarray, np.ndarray]:
         idx = self.rng.integers(0, self.size, batch_size)
+        if self.lanes != 1:
+            idx = self._stored_slot(idx)
         return idx, np.ones(batch_size, np.float32)
+
+    def _stored_slot(self, rank: np.ndarray) -> np.ndarray:
+        """The ``rank``-th stored slot counted lane by lane (lanes fill at their own pace)."""
+        if self.size == self.capacity:
+            return rank
+        ends = np.cumsum(self._lane_size)
+        lane = np.searchsorted(ends, rank, side="right")
+        return self._lane_base[lane] + rank - (ends[lane] - self._lane_size[lane])
+
+    def _shift(self, slots: np.ndarray, offsets: np.ndarray | int) -> np.ndarray:
+        """Slots ``offsets`` steps after ``slots`` in the same lane (circular)."""
+        if self.lanes == 1:
+            return (slots + offsets) % self.capacity
+        c = self.lane_capacity
+        local = slots % c
+        return slots - local + (local + offsets) % c
 
     def sample(self, batch_size: int) -> ReplayBatch:
         """Draw ``batch_size`` transitions with n-step targets and windows assembled."""
@@ -150,7 +244,7 @@ class ReplayBuffer:
         if w == 1:
             return end[:, None]
         back = np.arange(w - 1, -1, -1)  # chronological: oldest first, `end` last
-        slots = (end[:, None] - back) % self.capacity
+        slots = self._shift(end[:, None], -back)
         same = self._same_episode(end, slots, -back)
         # valid positions form a suffix; count it from the newest step backwards
         n_valid = np.logical_and.accumulate(same[:, ::-1], axis=1).sum(axis=1)
@@ -168,7 +262,7 @@ class ReplayBuffer:
             last = idx
         else:
             ks = np.arange(n)
-            slots = (idx[:, None] + ks) % self.capacity
+            slots = self._shift(idx[:, None], ks)
             same = self._same_episode(idx, slots, ks)
             ended = self.terminated[slots] | self.truncated[slots]
             # step k is summed only if no earlier step of the lookahead ended the episode
@@ -177,7 +271,7 @@ class ReplayBuffer:
             included = np.logical_and.accumulate(same & open_before, axis=1)
             m = included.sum(axis=1)
             returns = (included * self._gamma_pows[:n] * self.rewards[slots]).sum(axis=1)
-            last = (idx + m - 1) % self.capacity
+            last = self._shift(idx, m - 1)
         # The adopted target: only a premature end (terminated) cuts the bootstrap; a max-steps
         # end (truncated) bootstraps like any step unless the ablation switch is off.
         if self.bootstrap_on_truncation:
@@ -281,6 +375,13 @@ class PrioritizedReplayBuffer(ReplayBuffer):
         self.tree.update(np.array([i]), np.array([self.max_priority**self.alpha]))
         return i
 
+    def add_cars(self, *args: object, **kwargs: object) -> np.ndarray:  # type: ignore[override]
+        if self.lanes == 1:  # add() sets each slot's priority
+            return super().add_cars(*args, **kwargs)  # type: ignore[arg-type]
+        slots = super().add_cars(*args, **kwargs)  # type: ignore[arg-type]
+        self.tree.update(slots, np.full(len(slots), self.max_priority**self.alpha))
+        return slots
+
     def priority(self, td_errors: np.ndarray, action_grads: np.ndarray) -> np.ndarray:
         """The paper's p_i = delta_i^2 + lambda3 |grad_a Q(s_i, a_i)|^2 + eps."""
         td_errors = np.asarray(td_errors, np.float64)
@@ -304,7 +405,9 @@ class PrioritizedReplayBuffer(ReplayBuffer):
         total = self.tree.total
         # stratified: one draw in each of batch_size equal slices of the total mass
         mass = (np.arange(batch_size) + self.rng.random(batch_size)) * (total / batch_size)
-        idx = np.minimum(self.tree.find(np.minimum(mass, np.nextafter(total, 0.0))), self.size - 1)
+        idx = self.tree.find(np.minimum(mass, np.nextafter(total, 0.0)))
+        if self.lanes == 1:  # with lanes, stored slots are not a prefix; find never picks p = 0
+            idx = np.minimum(idx, self.size - 1)
         probs = self.tree.values(idx) / total
         weights = (self.size * probs) ** (-self.beta)
         weights /= weights.max()
@@ -337,6 +440,63 @@ class ObservationWindow:
         return np.stack(self._frames)
 
 
+class OnlinePriorities:
+    """The priority sink of a mixed batch: the first ``rows`` rows are the online buffer's."""
+
+    def __init__(self, buffer: PrioritizedReplayBuffer, rows: int) -> None:
+        self.buffer = buffer
+        self.rows = int(rows)
+
+    def update_priorities(
+        self, indices: np.ndarray, td_errors: np.ndarray, action_grads: np.ndarray
+    ) -> np.ndarray:
+        """The online rows' new priorities (demonstration rows keep none)."""
+        r = self.rows
+        return self.buffer.update_priorities(indices[:r], td_errors[:r], action_grads[:r])
+
+
+class DemoMix:
+    """Batches of ``batch - demo_rows`` online rows followed by ``demo_rows`` demonstration
+    rows (RLPD's symmetric sampling at ``demo_rows = batch / 2``).
+
+    Both parts are assembled by their own buffer (same n-step, window and target rules), then
+    concatenated; ``from_demos`` marks the demonstration rows, ``indices`` are each part's own
+    slots. Under PER the online part is drawn by priority with its importance weights and
+    ``priorities`` passes only those rows' new priorities on; demonstration rows are uniform,
+    weight 1.
+    """
+
+    def __init__(self, online: ReplayBuffer, demos: ReplayBuffer, demo_rows: int) -> None:
+        if len(demos) == 0:
+            raise ValueError("the demonstration buffer is empty")
+        self.online = online
+        self.demos = demos
+        self.demo_rows = int(demo_rows)
+        self._flags: dict[int, np.ndarray] = {}
+
+    def sample(self, batch_size: int) -> ReplayBatch:
+        k = self.demo_rows
+        online_rows = batch_size - k
+        if k == 0:
+            return self.online.sample(batch_size)
+        if online_rows <= 0:
+            raise ValueError(f"batch {batch_size} leaves no online rows beside {k} demo rows")
+        a = self.online.sample(online_rows)
+        b = self.demos.sample(k)
+        flags = self._flags.get(batch_size)
+        if flags is None:
+            flags = self._flags[batch_size] = np.arange(batch_size) >= online_rows
+        fields = {f: np.concatenate([x, y]) for f, x, y in zip(
+            ReplayBatch._fields[:-1], a[:-1], b[:-1], strict=True)}  # fmt: skip
+        return ReplayBatch(**fields, from_demos=flags)
+
+    def priorities(self, batch_size: int) -> OnlinePriorities | None:
+        """What ``agent.update`` gets as ``per_buffer``: None for a uniform online buffer."""
+        if not isinstance(self.online, PrioritizedReplayBuffer):
+            return None
+        return OnlinePriorities(self.online, batch_size - self.demo_rows)
+
+
 def make_buffer(
     capacity: int,
     obs_dim: int,
@@ -352,14 +512,16 @@ def make_buffer(
     beta: float = 0.4,
     lambda3: float = 1.0,
     eps: float = 1e-3,
+    lanes: int = 1,
 ) -> ReplayBuffer:
-    """The buffer a variant's configuration asks for."""
+    """The buffer a variant's configuration asks for (``lanes``: one per car driven into it)."""
     common = dict(
         gamma=gamma,
         n_step=n_step,
         window=window,
         bootstrap_on_truncation=bootstrap_on_truncation,
         seed=seed,
+        lanes=lanes,
     )
     if prioritized:
         return PrioritizedReplayBuffer(

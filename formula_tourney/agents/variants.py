@@ -1,10 +1,13 @@
-"""The paper's DDPG variants as named configurations of the one update rule in ``ddpg.py``.
+"""The paper's DDPG variants, and TD3 and SAC beyond it, as configurations of the one update rule.
 
 A variant never copies the algorithm: WIN1/4/8 set the window ``w`` fed to actor and critic,
 LSTM4/8 switch the critic to the LSTM critic over a window of ``w`` states and actions, MS2/3/4
 set the n of the multi-step target, PER40k/PER1M switch on prioritized replay with that buffer
-size. Every field carries a description, so ``--help``, tournament files and error messages all
-read from this one place.
+size. Beyond the paper, ``algorithm`` selects TD3 or SAC in the same update (``ddpg.py``): DDPG
+is TD3 with one critic, no target smoothing and no delay (Stable-Baselines3's view), and SAC
+swaps the deterministic actor for a squashed Gaussian and adds the entropy terms; replay,
+windows, n-step, PER and the adopted target are shared. Every field carries a description, so
+``--help``, tournament files and error messages all read from this one place.
 """
 
 from __future__ import annotations
@@ -15,8 +18,16 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from formula_tourney.errors import UserInputError
 
-Family = Literal["DDPG", "LSTM", "MS", "PER"]
-FAMILIES: tuple[str, ...] = ("DDPG", "LSTM", "MS", "PER")
+Family = Literal["DDPG", "LSTM", "MS", "PER", "TD3", "SAC"]
+Algorithm = Literal["ddpg", "td3", "sac"]
+PAPER_FAMILIES: tuple[str, ...] = ("DDPG", "LSTM", "MS", "PER")
+FAMILIES: tuple[str, ...] = (*PAPER_FAMILIES, "TD3", "SAC")
+ALGORITHM_FAMILIES: dict[str, tuple[str, ...]] = {
+    "ddpg": PAPER_FAMILIES, "td3": ("TD3",), "sac": ("SAC",),
+}  # fmt: skip
+"""The families an algorithm's variants may belong to (a TD3 entrant never competes as PER)."""
+TD3_FIELDS: tuple[str, ...] = ("policy_noise", "noise_clip", "policy_delay")
+SAC_FIELDS: tuple[str, ...] = ("alpha_init", "alpha_lr", "target_entropy")
 
 
 class AgentConfig(BaseModel):
@@ -27,8 +38,14 @@ class AgentConfig(BaseModel):
     name: str = Field("WIN1", description="Variant name as registered (e.g. WIN4, PER1M).")
     family: Family = Field(
         "DDPG",
-        description="Paper's algorithm family: DDPG (the WIN variants), LSTM, MS or PER; "
-        "tournaments promote the best entrant of each family.",
+        description="Algorithm family: the paper's DDPG (the WIN variants), LSTM, MS or PER, or "
+        "TD3 or SAC beyond the paper; tournaments promote the best entrant of each family.",
+    )
+    algorithm: Algorithm = Field(
+        "ddpg",
+        description="Update rule: ddpg (the paper's: one critic, deterministic actor), td3 "
+        "(twin critics with clipped double-Q, target policy smoothing, delayed actor) or sac "
+        "(squashed Gaussian actor, twin critics, entropy bonus with a learned temperature).",
     )
     # --- variant axes -------------------------------------------------------------------------
     window: int = Field(
@@ -128,6 +145,36 @@ class AgentConfig(BaseModel):
     throttle_bias_init: float = Field(
         1.0, description="Initial bias of the throttle output's pre-sigmoid (sigmoid(1) = 0.73)."
     )
+    # --- TD3 (Fujimoto et al. 2018) -----------------------------------------------------------
+    policy_noise: float = Field(
+        0.2,
+        ge=0.0,
+        description="TD3 only: std of the Gaussian target policy smoothing noise added to "
+        "mu'(s') in the target, in action units (steer spans 2, each pedal 1).",
+    )
+    noise_clip: float = Field(
+        0.5,
+        ge=0.0,
+        description="TD3 only: the smoothing noise is clipped to [-noise_clip, noise_clip] "
+        "before the noisy target action is clipped to the action box.",
+    )
+    policy_delay: int = Field(
+        2,
+        ge=1,
+        le=64,
+        description="TD3 only: the actor and the target networks are updated once every "
+        "policy_delay critic updates.",
+    )
+    # --- SAC (Haarnoja et al. 2018, automatic temperature) --------------------------------------
+    alpha_init: float = Field(
+        1.0, gt=0.0, description="SAC only: initial entropy temperature alpha (SB3's auto: 1)."
+    )
+    alpha_lr: float = Field(3e-4, gt=0.0, description="SAC only: Adam learning rate of log alpha.")
+    target_entropy: float | None = Field(
+        None,
+        description="SAC only: entropy that alpha steers the policy to; None is -action_dim "
+        "(-3 for steer, throttle, brake).",
+    )
     # --- exploration --------------------------------------------------------------------------
     exploration_steps: int = Field(
         100_000,
@@ -166,7 +213,47 @@ class AgentConfig(BaseModel):
             raise ValueError("hidden units must be positive")
         if self.batch_size > self.buffer_size:
             raise ValueError("batch_size must not exceed buffer_size")
+        families = ALGORITHM_FAMILIES[self.algorithm]
+        if self.family not in families:
+            raise ValueError(
+                f"family {self.family} does not fit algorithm {self.algorithm}; allowed: "
+                f"{', '.join(families)}"
+            )
+        if self.algorithm != "ddpg" and self.lstm_critic:
+            # twin LSTM critics would need their own q_pair and double the slowest update
+            raise ValueError(f"lstm_critic is supported for algorithm ddpg only, not "
+                             f"{self.algorithm}; use window > 1 with the MLP critics")  # fmt: skip
+        # a setting the algorithm would ignore is an error, not a silent no-op
+        for algorithm, fields in (("td3", TD3_FIELDS), ("sac", SAC_FIELDS)):
+            if self.algorithm == algorithm:
+                continue
+            changed = [k for k in fields if getattr(self, k) != type(self).model_fields[k].default]
+            if changed:
+                raise ValueError(
+                    f"{', '.join(changed)} apply to algorithm {algorithm} only, not "
+                    f"{self.algorithm}"
+                )
         return self
+
+    @property
+    def beyond_paper(self) -> bool:
+        """True for families the paper did not race (TD3, SAC): tables label them."""
+        return self.algorithm != "ddpg"
+
+    @property
+    def uses_action_noise(self) -> bool:
+        """Whether the training loop adds the OU + brake exploration noise to ``explore``'s
+        action (DDPG, TD3); SAC explores by sampling its own policy."""
+        return self.algorithm != "sac"
+
+    @property
+    def twin_critics(self) -> bool:
+        """Clipped double-Q: two critics, the target takes their minimum (TD3, SAC)."""
+        return self.algorithm != "ddpg"
+
+    def entropy_target(self, action_dim: int) -> float:
+        """SAC's target entropy: ``target_entropy``, or -action_dim when unset."""
+        return float(-action_dim if self.target_entropy is None else self.target_entropy)
 
 
 VARIANTS: dict[str, AgentConfig] = {
@@ -181,11 +268,32 @@ VARIANTS: dict[str, AgentConfig] = {
     "PER40k": AgentConfig(name="PER40k", family="PER", prioritized=True, buffer_size=40_000),
     "PER1M": AgentConfig(name="PER1M", family="PER", prioritized=True, buffer_size=1_000_000),
 }
+"""The paper's ten variants (section "Algorithms"), in its order."""
+
+BEYOND_PAPER_VARIANTS: dict[str, AgentConfig] = {
+    # MLP critics, window 1. TD3: Fujimoto et al.'s 400-300 nets and lr 1e-3 for both, SB3's
+    # batch 256, their smoothing 0.2 / clip 0.5 / delay 2 (the field defaults); SAC (Haarnoja et
+    # al., SB3): 256-256 nets, lr 3e-4 everywhere, batch 256, tau 0.005, alpha from 1
+    "TD3": AgentConfig(name="TD3", family="TD3", algorithm="td3", actor_lr=1e-3),
+    "SAC": AgentConfig(
+        name="SAC",
+        family="SAC",
+        algorithm="sac",
+        hidden=(256, 256),
+        actor_lr=3e-4,
+        critic_lr=3e-4,
+        alpha_lr=3e-4,
+    ),
+}
+"""Registered variants of families the paper did not race; ``beyond_paper`` is True for each."""
+
+ALL_VARIANTS: dict[str, AgentConfig] = {**VARIANTS, **BEYOND_PAPER_VARIANTS}
+"""Every registered variant: the paper's ten, then those beyond the paper."""
 
 
 def variant_names() -> list[str]:
-    """Registered variant names in the paper's order."""
-    return list(VARIANTS)
+    """Registered variant names: the paper's ten in its order, then those beyond the paper."""
+    return list(ALL_VARIANTS)
 
 
 def get_variant(name: str, overrides: dict[str, Any] | None = None) -> AgentConfig:
@@ -194,13 +302,15 @@ def get_variant(name: str, overrides: dict[str, Any] | None = None) -> AgentConf
     Unknown names, unknown override keys and out-of-range values raise UserInputError naming the
     key, so a typo in a tournament file never silently trains the default.
     """
-    if name not in VARIANTS:
-        raise UserInputError(f"unknown variant {name!r}; known: {', '.join(VARIANTS)}")
-    base = VARIANTS[name]
+    if name not in ALL_VARIANTS:
+        raise UserInputError(f"unknown variant {name!r}; known: {', '.join(ALL_VARIANTS)}")
+    base = ALL_VARIANTS[name]
     if not overrides:
         return base
-    if "name" in overrides or "family" in overrides:
-        raise UserInputError(f"variant {name}: overrides may not change 'name' or 'family'")
+    fixed = [k for k in ("name", "family", "algorithm") if k in overrides]
+    if fixed:
+        raise UserInputError(f"variant {name}: overrides may not change 'name', 'family' or "
+                             f"'algorithm' (got {', '.join(fixed)})")  # fmt: skip
     try:
         return AgentConfig.model_validate({**base.model_dump(), **overrides})
     except ValidationError as err:

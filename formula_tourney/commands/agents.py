@@ -79,6 +79,14 @@ def register(app: typer.Typer) -> None:
         env_set: list[str] = typer.Option(  # noqa: B006
             [], "--env-set", help="FormulaRacing-v0 config override key=value (repeatable)."
         ),
+        cars: int = typer.Option(1, help="Cars driving into the one replay buffer."),
+        demo_laps: int = typer.Option(
+            0, "--demo-laps", help="Follower laps per train track seeding a demonstration buffer "
+            "(0: no demonstrations; beyond the paper)."
+        ),
+        demo_line: str = typer.Option("mincurv", help="Line the demonstrating follower drives."),
+        demo_fraction: float = typer.Option(0.5, help="Share of each batch from the demos."),
+        bc_steps: int = typer.Option(0, help="Behaviour-cloning warm-start steps (with demos)."),
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
     ) -> None:
         """Train one DDPG variant and write its job folder (docs/CONTRACTS.md layout)."""
@@ -93,7 +101,9 @@ def register(app: typer.Typer) -> None:
             threads=threads, env_overrides=_parse_sets(env_set, "--env-set"),
             schedule={"episodes": episodes, "max_steps": max_steps,
                       "test_every_episodes": test_every, "test_starts": test_starts,
-                      "test_max_steps": test_max_steps},
+                      "test_max_steps": test_max_steps, "cars": cars},
+            demos={"laps": demo_laps, "line": demo_line, "batch_fraction": demo_fraction,
+                   "bc_steps": bc_steps} if demo_laps > 0 else None,
             source="train options",
         )  # fmt: skip
         if JobFolder(out).is_finished():
@@ -137,27 +147,30 @@ def register(app: typer.Typer) -> None:
     def variants_cmd(
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
     ) -> None:
-        """List the registered DDPG variants and what each changes."""
-        from formula_tourney.agents.variants import VARIANTS, AgentConfig
+        """List the registered variants (the paper's ten, then those beyond it) and what each
+        changes from the defaults."""
+        from formula_tourney.agents.variants import ALL_VARIANTS, AgentConfig
 
         default = AgentConfig()
         rows = []
-        for name, v in VARIANTS.items():
+        for name, v in ALL_VARIANTS.items():
             changed = {
                 k: val
                 for k, val in v.model_dump().items()
                 if k not in ("name", "family") and val != getattr(default, k)
             }
-            rows.append({"name": name, "family": v.family, "changes": changed})
+            rows.append({"name": name, "family": v.family, "beyond_paper": v.beyond_paper,
+                         "changes": changed})  # fmt: skip
 
         def render(console: Any) -> None:
             from rich.table import Table
 
-            table = Table("variant", "family", "changes from the defaults")
+            table = Table("variant", "family", "source", "changes from the defaults")
             for r in rows:
                 table.add_row(
                     r["name"],
                     r["family"],
+                    "beyond paper" if r["beyond_paper"] else "paper",
                     ", ".join(f"{k}={v}" for k, v in r["changes"].items()) or "-",
                 )
             console.print(table)

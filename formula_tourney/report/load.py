@@ -53,6 +53,8 @@ class TournamentData:
     general_models: pd.DataFrame = field(default_factory=lambda: pd.DataFrame(
         columns=L.INDEX_TABLES["general_models"]))
     configs: dict[str, dict[str, Any]] = field(default_factory=dict)
+    beyond_paper: dict[str, list[str]] = field(default_factory=dict)
+    """Per job, what its run adds to the paper's setup (labelled in every table)."""
     """Run specification (config.json's ``run_spec``) per job id."""
     problems: list[str] = field(default_factory=list)
     unseen_finish_rates: dict[str, float] = field(default_factory=dict)
@@ -175,19 +177,22 @@ def _finish_rates(meta: dict[str, str]) -> dict[str, float]:
 
 
 def _read_job(folder: JobFolder, job_id: str, problems: list[str]
-              ) -> tuple[dict[str, Any] | None, dict[str, pd.DataFrame]]:
-    """A job folder's run spec and the tables it wrote; what cannot be read is a problem line.
+              ) -> tuple[dict[str, Any] | None, list[str], dict[str, pd.DataFrame]]:
+    """A job folder's run spec, what it adds to the paper's setup and the tables it wrote; what
+    cannot be read is a problem line.
 
     A folder of another layout version is not read at all: its columns may mean other things.
     """
     spec: dict[str, Any] | None = None
+    beyond: list[str] = []
     try:
         spec = folder.config()
+        beyond = folder.beyond_paper()
     except FileNotFoundError:
         pass  # not started yet, or failed before writing anything
     except OldSchemaError as err:
         problems.append(f"{job_id}: written by another version; cannot read ({err})")
-        return None, {}
+        return None, [], {}
     except CorruptResultError as err:
         problems.append(f"{job_id}: {err}")
     tables: dict[str, pd.DataFrame] = {}
@@ -198,7 +203,7 @@ def _read_job(folder: JobFolder, job_id: str, problems: list[str]
             tables[name] = folder.table(name)
         except CorruptResultError as err:
             problems.append(f"{job_id}: {err}")
-    return spec, tables
+    return spec, beyond, tables
 
 
 def load_tournament(root: str | Path, part: str | None = None) -> TournamentData:
@@ -267,6 +272,7 @@ def load_tournament(root: str | Path, part: str | None = None) -> TournamentData
 
     frames: dict[str, list[pd.DataFrame]] = {name: [] for name in JOB_TABLE_NAMES}
     configs: dict[str, dict[str, Any]] = {}
+    beyond: dict[str, list[str]] = {}
     for _, job in jobs.iterrows():
         job_id = str(job["job_id"])
         folder = JobFolder(root / (str(job["path"]) if _present(job["path"]) else job_id))
@@ -276,7 +282,7 @@ def load_tournament(root: str | Path, part: str | None = None) -> TournamentData
             problems.append(f"{job_id}: failed ({reason}); partial results used if any")
         elif status in ("pending", "running"):
             problems.append(f"{job_id}: {status}; not finished")
-        spec, tables = _read_job(folder, job_id, problems)
+        spec, beyond[job_id], tables = _read_job(folder, job_id, problems)
         if spec is not None:
             configs[job_id] = spec
         for name, frame in tables.items():
@@ -305,6 +311,7 @@ def load_tournament(root: str | Path, part: str | None = None) -> TournamentData
     return TournamentData(
         root=root, name=root.name, jobs=jobs, parts=parts, baselines=baselines, tests=tests,
         episodes=episodes, laps=laps, general_models=general, configs=configs,
+        beyond_paper=beyond,
         problems=problems, unseen_finish_rates=rates,
     )
 

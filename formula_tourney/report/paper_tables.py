@@ -220,13 +220,18 @@ def _jobs_with_tracks(data: TournamentData) -> pd.DataFrame:
     return jobs
 
 
-def _row_keys(jobs: pd.DataFrame) -> dict[str, str]:
+def _row_keys(jobs: pd.DataFrame, beyond_paper: dict[str, list[str]]) -> dict[str, str]:
     """Row label per job: the variant (as in the paper), or the entrant name for jobs whose part
-    holds several entrants of one variant with the same line and LAC (e.g. an ablation pair)."""
+    holds several entrants of one variant with the same line and LAC (e.g. an ablation pair);
+    a run that goes beyond the paper (another family, demonstrations, several cars) carries
+    "(beyond paper: ...)" so a replication is never mistaken for an improvement."""
     keys: dict[str, str] = {}
     for _, grp in jobs.groupby(["part", "reference", "lac", "variant"], sort=False):
         col = "entrant" if grp["entrant"].nunique() > 1 else "variant"
-        keys.update({str(j): str(v) for j, v in zip(grp["job_id"], grp[col], strict=True)})
+        for job_id, name in zip(grp["job_id"], grp[col], strict=True):
+            extra = beyond_paper.get(str(job_id)) or []
+            keys[str(job_id)] = f"{name} (beyond paper: {', '.join(extra)})" if extra \
+                else str(name)
     return keys
 
 
@@ -255,7 +260,8 @@ class Context:
         jobs = _jobs_with_tracks(data)
         models = metrics.model_table(data.tests)
         return cls(data=data, jobs=jobs, runs=metrics.run_table(models), models=models,
-                   limits=reference_limits(data.baselines), row_keys=_row_keys(jobs))
+                   limits=reference_limits(data.baselines),
+                   row_keys=_row_keys(jobs, data.beyond_paper))
 
     def runs_of(self, job_ids: list[str], track: str) -> pd.DataFrame:
         sel = self.runs["job_id"].isin(job_ids) & (self.runs["track"].astype(str) == track)

@@ -105,11 +105,15 @@ class JobFolder:
         return True
 
     # ------------------------------------------------------------------------------ writers
-    def write_config(self, run_spec: Mapping[str, Any]) -> Path:
-        """config.json: the layout version and the run specification (plain JSON data)."""
-        return atomic_write_json(
-            self.config_path, {"schema_version": L.SCHEMA_VERSION, "run_spec": dict(run_spec)}
-        )
+    def write_config(
+        self, run_spec: Mapping[str, Any], beyond_paper: Sequence[str] = ()
+    ) -> Path:
+        """config.json: the layout version, the run specification (plain JSON data) and what in
+        it goes beyond the paper (empty for a replication), which every table labels."""
+        return atomic_write_json(self.config_path, {
+            "schema_version": L.SCHEMA_VERSION, "run_spec": dict(run_spec),
+            "beyond_paper": list(beyond_paper),
+        })  # fmt: skip
 
     def write_tables(
         self,
@@ -135,12 +139,10 @@ class JobFolder:
         return atomic_write_text(self.path / L.ERROR_FILE, text)
 
     # ------------------------------------------------------------------------------ readers
-    def config(self) -> dict[str, Any]:
-        """The run specification stored in config.json (as plain data).
-
-        A folder of another layout version raises OldSchemaError saying what it is, so a report
-        of an older results folder says what it cannot read instead of guessing.
-        """
+    def _config_document(self) -> dict[str, Any]:
+        """config.json as written; a folder of another layout version raises OldSchemaError
+        saying what it is, so a report of an older results folder says what it cannot read
+        instead of guessing."""
         data = read_json_file(self.config_path, "the job's config.json")
         version = data.get("schema_version") if isinstance(data, dict) else None
         if version != L.SCHEMA_VERSION or not isinstance(data.get("run_spec"), dict):
@@ -149,7 +151,15 @@ class JobFolder:
                 f"{self.config_path}: written by another version of formula-tourney ({found}); "
                 f"this version reads layout {L.SCHEMA_VERSION}: re-run the job to upgrade it"
             )
-        return dict(data["run_spec"])
+        return data
+
+    def config(self) -> dict[str, Any]:
+        """The run specification stored in config.json (as plain data)."""
+        return dict(self._config_document()["run_spec"])
+
+    def beyond_paper(self) -> list[str]:
+        """What the run adds to the paper's setup (e.g. "SAC", "demos"), empty for the paper's."""
+        return [str(x) for x in self._config_document().get("beyond_paper") or []]
 
     def summary(self) -> dict[str, Any]:
         data = read_json_file(self.summary_path, "the job's summary.json")

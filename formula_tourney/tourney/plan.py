@@ -62,13 +62,28 @@ def resolve_variant(spec: Tournament, name: str) -> tuple[str, str, dict[str, An
     return current, family or default_family(current), overrides
 
 
+def variant_run_settings(spec: Tournament, name: str) -> dict[str, Any]:
+    """Run settings a declared variant entry sets itself (demos, cars); the nearest entry in
+    its base chain wins, and they win over the part's."""
+    out: dict[str, Any] = {}
+    current, seen = name, set()
+    while current in spec.variants and current not in seen:
+        seen.add(current)
+        entry = spec.variants[current]
+        for key in ("demos", "cars"):
+            if key not in out and getattr(entry, key) is not None:
+                out[key] = getattr(entry, key)
+        if entry.base is None or entry.base == current:
+            break
+        current = entry.base
+    return out
+
+
 def part_variants(spec: Tournament, part: Part) -> list[str] | None:
-    """Declared entrants of a part, all variants for "all", None for promoted parts."""
-    if part.entrants == "all":
-        return spec.variant_names()
-    if isinstance(part.entrants, list):
-        return list(part.entrants)
-    return None
+    """Declared entrants of a part ("all", "all+beyond" resolved), None for promoted parts."""
+    if part.entrants is None:
+        return None
+    return spec.entrant_names(part.entrants)
 
 
 def possible_variants(spec: Tournament, part: Part) -> list[str]:
@@ -86,7 +101,8 @@ def spec_settings(settings: dict[str, Any], force_checkpoints: bool = False) -> 
     schedule = {k: settings[k] for k in SCHEDULE_KEYS if settings.get(k) is not None}
     if force_checkpoints:
         schedule["save_test_checkpoints"] = True
-    out: dict[str, Any] = {"schedule": schedule, "env_overrides": settings.get("env_overrides")}
+    out: dict[str, Any] = {"schedule": schedule, "env_overrides": settings.get("env_overrides"),
+                           "demos": settings.get("demos")}
     for key in ("device", "threads"):
         if settings.get(key) is not None:
             out[key] = settings[key]
@@ -142,7 +158,7 @@ class Planner:
         setup = part.setups[setup_index]
         trains, tests = self.tracks(index)
         base, _family, own = resolve_variant(self.spec, variant)
-        settings = self.spec.settings(part)
+        settings = {**self.spec.settings(part), **variant_run_settings(self.spec, variant)}
         try:
             return build_run_spec(
                 variant=base, overrides={**(settings["variant_overrides"] or {}), **own},

@@ -28,11 +28,11 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from formula_tourney.agents.variants import VARIANTS
+from formula_tourney.agents.variants import ALL_VARIANTS, BEYOND_PAPER_VARIANTS, VARIANTS
 from formula_tourney.errors import UserInputError
 from formula_tourney.safeio import check_name, read_user_text
 from formula_tourney.sim.config import RUN_OWNED_KEYS, EnvSettings
-from formula_tourney.training.spec import RUN_OWNED_HINTS, RunSpec, Schedule
+from formula_tourney.training.spec import RUN_OWNED_HINTS, DemoSettings, RunSpec, Schedule
 
 MAX_SPEC_BYTES = 1024 * 1024
 """Largest tournament or tune file read (1 MiB; study2.toml is under 4 KiB). A bigger file is
@@ -40,6 +40,10 @@ refused by its size before it is read, so a huge or endless file cannot stall a 
 
 # The paper's ten variants (section "Algorithms"); agents.variants defines what each one is.
 PAPER_VARIANTS: tuple[str, ...] = tuple(VARIANTS)
+# Registered variants of families the paper did not race (TD3, SAC): entrants = "all+beyond"
+BEYOND_PAPER: tuple[str, ...] = tuple(BEYOND_PAPER_VARIANTS)
+ALL_AND_BEYOND_ENTRANTS = "all+beyond"
+"""``entrants`` value for "all" plus every registered variant beyond the paper."""
 REFERENCE_TAGS: dict[str, str] = {"centre": "MOT", "recorded": "RC", "mincurv": "MC"}
 """Short tags used in entrant names: the paper's MOT (middle of track) and RC (racing line)."""
 
@@ -47,14 +51,22 @@ REFERENCE_TAGS: dict[str, str] = {"centre": "MOT", "recorded": "RC", "mincurv": 
 def default_family(variant: str) -> str:
     """The paper's family of a registered variant (WIN* -> DDPG, PER1M -> PER), else the name's
     leading letters."""
-    if variant in VARIANTS:
-        return str(VARIANTS[variant].family)
+    if variant in ALL_VARIANTS:
+        return str(ALL_VARIANTS[variant].family)
     match = re.match(r"[A-Za-z]+", variant)
     return match.group(0).upper() if match else variant
 
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def _unset_or(model: type[BaseModel], name: str) -> Any:
+    """The type of ``model.<name>`` made optional (None = unset here), keeping the owner's
+    constraints and description, so a range is written once (in ``training.spec``)."""
+    info = model.model_fields[name]
+    inner = Annotated[(info.annotation, *info.metadata)] if info.metadata else info.annotation
+    return Annotated[inner | None, Field(description=info.description)]
 
 
 class VariantEntry(_Strict):
@@ -68,12 +80,18 @@ class VariantEntry(_Strict):
     family: str | None = Field(
         None,
         description="Family for 'best per family' promotion (default: the base variant's family "
-        "in agents.variants: DDPG, LSTM, MS, PER).",
+        "in agents.variants: DDPG, LSTM, MS, PER, or TD3, SAC beyond the paper).",
     )
     overrides: dict[str, Any] = Field(
         default_factory=dict,
         description="Variant hyperparameters to change (keys of agents.variants.AgentConfig).",
     )
+    demos: DemoSettings | None = Field(
+        None,
+        description="Learn from the follower's demonstrations (beyond the paper; the entrant is "
+        "labelled so); wins over the part's demos.",
+    )
+    cars: _unset_or(Schedule, "cars") = None
 
 
 class Setup(_Strict):
@@ -148,14 +166,6 @@ class Selection(_Strict):
     )
 
 
-def _unset_or(model: type[BaseModel], name: str) -> Any:
-    """The type of ``model.<name>`` made optional (None = unset here), keeping the owner's
-    constraints and description, so a range is written once (in ``training.spec``)."""
-    info = model.model_fields[name]
-    inner = Annotated[(info.annotation, *info.metadata)] if info.metadata else info.annotation
-    return Annotated[inner | None, Field(description=info.description)]
-
-
 class JobSettings(_Strict):
     """Training settings of every job in a part; unset values fall back to [defaults], then to
     the run specification's own defaults (``training.spec.Schedule`` and ``RunSpec``)."""
@@ -168,6 +178,10 @@ class JobSettings(_Strict):
     test_starts: _unset_or(Schedule, "test_starts") = None
     test_max_steps: _unset_or(Schedule, "test_max_steps") = None
     save_test_checkpoints: _unset_or(Schedule, "save_test_checkpoints") = None
+    cars: _unset_or(Schedule, "cars") = None
+    demos: DemoSettings | None = Field(
+        None, description="Demonstrations for every entrant here (beyond the paper)."
+    )
     device: _unset_or(RunSpec, "device") = None
     threads: _unset_or(RunSpec, "threads") = None
     env_overrides: EnvSettings | None = Field(
@@ -200,10 +214,11 @@ class Part(JobSettings):
 
     name: str = Field(description="Part name, also its results folder.")
     study: str = Field("main", description="Study this part belongs to (e.g. study1).")
-    entrants: list[str] | Literal["all"] | None = Field(
+    entrants: list[str] | Literal["all", "all+beyond"] | None = Field(
         None,
-        description="Variant names competing here, or \"all\" for every declared/built-in "
-        "variant. Exactly one of entrants and promoted_from.",
+        description="Variant names competing here; \"all\" for every declared variant and the "
+        "paper's ten; \"all+beyond\" for those plus the registered variants beyond the paper "
+        "(TD3, SAC). Exactly one of entrants and promoted_from.",
     )
     promoted_from: str | None = Field(
         None, description="Take entrants from this earlier part, by the promotion rules."
@@ -254,8 +269,8 @@ class Tournament(_Strict):
     seed_base: int = Field(0, ge=0, description="Seed of run n is seed_base + n.")
     variants: dict[str, VariantEntry] = Field(
         default_factory=dict,
-        description="Competitors by name. Undeclared paper variants (WIN1 ... PER1M) are "
-        "available with their defaults.",
+        description="Competitors by name. Undeclared registered variants (the paper's WIN1 ... "
+        "PER1M, and TD3, SAC beyond it) are available with their defaults.",
     )
     defaults: JobSettings = Field(
         default_factory=JobSettings, description="Settings shared by all parts."
@@ -281,14 +296,23 @@ class Tournament(_Strict):
         return value
 
     def variant(self, name: str) -> VariantEntry:
-        """The declared entry of a variant, or the default entry of a paper variant."""
+        """The declared entry of a variant, or the default entry of a registered variant."""
         return self.variants.get(name) or VariantEntry()
 
-    def variant_names(self) -> list[str]:
-        """Declared variants first, then the paper variants not declared."""
+    def variant_names(self, beyond_paper: bool = False) -> list[str]:
+        """Declared variants first, then the paper variants not declared (what "all" means);
+        ``beyond_paper``: then the registered variants beyond the paper ("all+beyond")."""
         names = list(self.variants)
         names += [v for v in PAPER_VARIANTS if v not in self.variants]
+        if beyond_paper:
+            names += [v for v in BEYOND_PAPER if v not in self.variants]
         return names
+
+    def entrant_names(self, entrants: list[str] | str) -> list[str]:
+        """A part's declared ``entrants`` as variant names, "all" and "all+beyond" resolved."""
+        if isinstance(entrants, str):  # the schema allows only the two keywords
+            return self.variant_names(beyond_paper=entrants == ALL_AND_BEYOND_ENTRANTS)
+        return list(entrants)
 
     def settings(self, part: Part) -> dict[str, Any]:
         """Resolved job settings of a part: part value, else [defaults] value; None = unset."""
@@ -533,7 +557,7 @@ def error_at(path: Path, text: str, loc: tuple[Any, ...], message: str) -> UserI
 
 def check_references(spec: Tournament, path: Path, text: str) -> None:
     """Cross-field rules: unique part names, promotion only from earlier parts, known variants."""
-    names = spec.variant_names()
+    names = spec.variant_names(beyond_paper=True)
     known = set(names)
     seen: dict[str, int] = {}
     for index, part in enumerate(spec.parts):
@@ -549,12 +573,13 @@ def check_references(spec: Tournament, path: Path, text: str) -> None:
         if isinstance(part.entrants, list):
             if not part.entrants:
                 raise error_at(path, text, ("parts", index, "entrants"),
-                               "empty list; name at least one variant or use \"all\"")
+                               "empty list; name at least one variant or use \"all\" or "
+                               "\"all+beyond\"")
             for name in part.entrants:
                 if name not in known:
                     raise error_at(path, text, ("parts", index, "entrants"),
                                    f"unknown variant {name!r}; allowed values: "
-                                   f"{', '.join(names)}, \"all\"")
+                                   f"{', '.join(names)}, \"all\", \"all+beyond\"")
         setups = [(s.reference, s.lac) for s in part.setups]
         if len(set(setups)) != len(setups):
             raise error_at(path, text, ("parts", index, "setups"),
@@ -565,12 +590,12 @@ def check_references(spec: Tournament, path: Path, text: str) -> None:
             raise error_at(path, text, ("parts", index, "selection", "kind"),
                            "'general' needs test_tracks that are not train tracks")
     for name, entry in spec.variants.items():
-        if entry.base is not None and entry.base not in PAPER_VARIANTS and entry.base not in (
+        if entry.base is not None and entry.base not in ALL_VARIANTS and entry.base not in (
             spec.variants
         ):
             raise error_at(path, text, ("variants", name, "base"),
                            f"unknown base variant {entry.base!r}; allowed values: "
-                           f"{', '.join(PAPER_VARIANTS)}")
+                           f"{', '.join(ALL_VARIANTS)}")
 
 
 def entrant_name(variant: str, setup: Setup) -> str:

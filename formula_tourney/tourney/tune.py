@@ -27,7 +27,7 @@ from typing import Any
 import optuna
 from optuna.trial import TrialState
 
-from formula_tourney.agents.variants import VARIANTS
+from formula_tourney.agents.variants import ALL_VARIANTS
 from formula_tourney.errors import UserInputError
 from formula_tourney.tourney.best_params import write_best_params
 from formula_tourney.tourney.executors import THREAD_ENV, default_workers
@@ -68,9 +68,9 @@ def run_tune(
     """
     path = Path(path)
     spec, text = load_tune_spec(path)
-    if variant not in VARIANTS:
+    if variant not in ALL_VARIANTS:
         raise UserInputError(f"--variant {variant!r}: unknown; allowed values: "
-                             f"{', '.join(VARIANTS)}")
+                             f"{', '.join(ALL_VARIANTS)}")
     if trials < 1:
         raise UserInputError(f"--trials must be >= 1, got {trials}")
     if workers is not None and workers < 1:

@@ -74,3 +74,12 @@ class RunEnvs:
         return gymnasium.make(
             ENV_ID, config=config, render_mode=render_mode, disable_env_checker=True
         )
+
+    def make_vector(self, track: str, cars: int) -> gymnasium.vector.VectorEnv:
+        """``cars`` training cars on ``track`` in one FormulaRacingVectorEnv (through
+        ``gymnasium.make_vec`` and the id's vector entry point; next-step autoreset), with the
+        training config of :meth:`config`."""
+        config = self.config(track, test=False)
+        return gymnasium.make_vec(
+            ENV_ID, num_envs=cars, vectorization_mode="vector_entry_point", config=config
+        )

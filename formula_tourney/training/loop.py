@@ -4,6 +4,16 @@ The run is fully described by its :class:`~formula_tourney.training.spec.RunSpec
 validated by the caller; nothing here re-defaults or re-checks a setting. Files go through
 ``results.folder.JobFolder`` (the one owner of the layout): ``config.json`` first, tables and
 checkpoints as they come, ``summary.json`` last (its presence means finished).
+
+One loop serves every configuration: each step acts for every car (the greedy actor plus the
+car's own exploration noise), steps the cars through a collector (``training.collect``: one car,
+or ``schedule.cars`` cars of the vector env, each into its own lane of the one buffer), then
+earns ``agent.updates_per_step`` updates per stored transition once learning has started and
+spends them. Each finished car-episode is one ``episodes.parquet`` row, and the tests and the
+progress callback follow the count of finished car-episodes. With ``spec.demos`` the follower's
+laps (``training.demos``) fill a demonstration buffer before the first step, the actor may be
+warm-started on them by behaviour cloning, and every batch draws its share of rows from them
+(``agents.replay.DemoMix``).
 """
 
 from __future__ import annotations
@@ -15,14 +25,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 from torch.utils.tensorboard import SummaryWriter
 
 from formula_tourney.agents.ddpg import DDPGAgent, configure_torch, save_checkpoint
 from formula_tourney.agents.noise import BrakeExplorationNoise, linear_epsilon
-from formula_tourney.agents.replay import ObservationWindow, make_buffer
+from formula_tourney.agents.replay import DemoMix, make_buffer
 from formula_tourney.results.folder import JobFolder
 from formula_tourney.results.layout import BEST_CHECKPOINT, LAST_CHECKPOINT
 from formula_tourney.results.metrics import model_clean_lap_s
+from formula_tourney.training.collect import SingleCarCollector, VectorCollector, split_cars
+from formula_tourney.training.demos import behaviour_clone, collect_demonstrations
 from formula_tourney.training.envs import RunEnvs
 from formula_tourney.training.evaluate import (
     laps_rows,
@@ -43,14 +56,22 @@ def _nan_to_none(x: float) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
 
 
+def _greedy_actions(agent: DDPGAgent, windows: np.ndarray) -> np.ndarray:
+    """mu(s) of every car in one actor forward ``(N, w, D) -> (N, 3)``: 6-12 us per car at 8-32
+    cars against ~40 us for one ``agent.act`` per car (400-300 actor, one thread, measured)."""
+    with torch.no_grad():
+        return agent.actor(torch.from_numpy(windows).to(agent.device)).cpu().numpy()
+
+
 def train(
     spec: RunSpec, out_dir: str | Path, progress: Progress | None = None
 ) -> dict[str, Any]:
     """Train ``spec`` and write its job folder under ``out_dir``; returns the summary.
 
     ``progress(dict(episode=, episodes=, best_lap_s=, env_steps=, updates=, seconds=))`` is called
-    after each episode; if it returns ``False`` the run stops early (time budgets, benchmarks) and
-    still writes its summary. Raises DivergedError on NaN losses.
+    after each finished (car-)episode; if it returns ``False`` the run stops early (time budgets,
+    benchmarks) and still writes its summary. ``env_steps`` counts stored transitions (car-steps)
+    over all cars. Raises DivergedError on NaN losses.
     """
     agent_cfg = spec.agent
     schedule = spec.schedule
@@ -60,32 +81,60 @@ def train(
 
     # --- seeding: one block ------------------------------------------------------------------
     configure_torch(spec.threads)
-    env_seq, noise_seq, buf_seq = np.random.SeedSequence(spec.seed).spawn(3)
+    # spawn(4)'s first three children are spawn(3)'s: adding the demo stream moved no run
+    env_seq, noise_seq, buf_seq, demo_seq = np.random.SeedSequence(spec.seed).spawn(4)
     rng = np.random.default_rng(env_seq)
+    cars = schedule.cars
 
-    train_envs = {name: envs.make(name, test=False) for name in dict.fromkeys(spec.train_tracks)}
+    if cars == 1:
+        train_envs = {n: envs.make(n, test=False) for n in dict.fromkeys(spec.train_tracks)}
+    else:
+        train_envs = {n: envs.make_vector(n, k) for n, k in split_cars(cars, spec.train_tracks)}
     test_envs: dict[str, Any] = {}
     first_env = next(iter(train_envs.values()))
-    obs_dim = int(np.prod(first_env.observation_space.shape))
-    action_dim = int(np.prod(first_env.action_space.shape))
+    single = cars == 1  # a vector env describes one car by its single_* spaces
+    obs_space = first_env.observation_space if single else first_env.single_observation_space
+    act_space = first_env.action_space if single else first_env.single_action_space
+    obs_dim = int(np.prod(obs_space.shape))
+    action_dim = int(np.prod(act_space.shape))
     agent = DDPGAgent(agent_cfg, obs_dim, action_dim, device=spec.device, seed=spec.seed)
     buffer = make_buffer(
         agent_cfg.buffer_size, obs_dim, action_dim, prioritized=agent_cfg.prioritized,
         gamma=agent_cfg.gamma, n_step=agent_cfg.n_step, window=agent_cfg.window,
         bootstrap_on_truncation=agent_cfg.adopted_target, seed=buf_seq,  # type: ignore[arg-type]
         alpha=agent_cfg.per_alpha, beta=agent_cfg.per_beta0, lambda3=agent_cfg.per_lambda3,
-        eps=agent_cfg.per_eps,
+        eps=agent_cfg.per_eps, lanes=cars,
     )  # fmt: skip
-    noise = BrakeExplorationNoise(
-        np.random.default_rng(noise_seq), agent_cfg.ou_theta, agent_cfg.ou_sigma,
-        agent_cfg.noise_prob, agent_cfg.brake_explore_prob, agent_cfg.brake_explore_mean,
-        agent_cfg.brake_explore_sigma,
-    )  # fmt: skip
-    window = ObservationWindow(agent_cfg.window)
+    noise_seeds = [noise_seq] if cars == 1 else noise_seq.spawn(cars)
+    noises = [
+        BrakeExplorationNoise(
+            np.random.default_rng(seq), agent_cfg.ou_theta, agent_cfg.ou_sigma,
+            agent_cfg.noise_prob, agent_cfg.brake_explore_prob, agent_cfg.brake_explore_mean,
+            agent_cfg.brake_explore_sigma,
+        )
+        for seq in noise_seeds
+    ]  # fmt: skip
+
+    # --- demonstrations: a second buffer every batch draws from, and the BC warm start -------
+    sampler: Any = buffer  # what batches are drawn from
+    priority_sink: Any = buffer  # what agent.update hands PER priorities to
+    demo_summary: dict[str, Any] | None = None
+    demo_seconds = 0.0  # driving and cloning count as training time (``seconds``)
+    if spec.demos is not None:
+        t_demo = time.perf_counter()
+        demos = collect_demonstrations(spec, envs, obs_dim, action_dim, seed=demo_seq)
+        mix = DemoMix(buffer, demos.buffer, spec.demos.demo_rows(agent_cfg.batch_size))
+        sampler, priority_sink = mix, mix.priorities(agent_cfg.batch_size)
+        demo_summary = demos.summary(spec.key_track)
+        if spec.demos.bc_steps > 0:
+            bc = behaviour_clone(agent, demos.buffer, spec.demos.bc_steps,
+                                 agent_cfg.batch_size, spec.demos.bc_lr)  # fmt: skip
+            demo_summary.update(bc_mse_before=bc[0], bc_mse_after=bc[1])
+        demo_seconds = time.perf_counter() - t_demo
 
     out.mkdir(parents=True, exist_ok=True)
     spec_json = spec.to_json()
-    folder.write_config(spec_json)
+    folder.write_config(spec_json, spec.beyond_paper())
     writer = SummaryWriter(str(folder.tb_dir))
 
     episodes_rows: list[dict[str, Any]] = []
@@ -96,7 +145,9 @@ def train(
     best_key_lap = math.inf
     env_steps = 0
     update_credit = 0.0
-    t0 = time.perf_counter()
+    # learning starts at the transition that reaches learning_starts with a batch stored
+    learn_from = max(agent_cfg.learning_starts, agent_cfg.batch_size)
+    t0 = time.perf_counter() - demo_seconds
     episode = 0
 
     def run_tests() -> None:
@@ -144,73 +195,81 @@ def train(
     def _write_tables() -> None:
         folder.write_tables(episodes_rows, test_table, lap_table)
 
-    train_names = list(spec.train_tracks)
+    def learn(stored: int) -> None:
+        """Earn updates for the ``stored`` transitions of this step and spend them."""
+        nonlocal update_credit
+        eligible = min(stored, env_steps - learn_from + 1)
+        if eligible <= 0 or len(buffer) < agent_cfg.batch_size:
+            return
+        update_credit += eligible * agent_cfg.updates_per_step  # 1 * x == x: N = 1 unchanged
+        while update_credit >= 1.0:
+            update_credit -= 1.0
+            if agent_cfg.prioritized:
+                frac = min(1.0, agent.updates / agent_cfg.per_beta_steps)
+                buffer.beta = agent_cfg.per_beta0 + (1.0 - agent_cfg.per_beta0) * frac
+            stats = agent.update(sampler.sample(agent_cfg.batch_size), priority_sink)
+            if not (math.isfinite(stats.critic_loss) and math.isfinite(stats.actor_loss)):
+                writer.close()
+                _write_tables()
+                raise DivergedError(
+                    f"{spec.variant} seed {spec.seed}: loss became {stats.critic_loss} / "
+                    f"{stats.actor_loss} at update {agent.updates}, episode {episode + 1}"
+                )
+            if agent.updates % 250 == 0:
+                writer.add_scalar("loss/critic", stats.critic_loss, agent.updates)
+                writer.add_scalar("loss/actor", stats.actor_loss, agent.updates)
+                writer.add_scalar("q/mean", stats.q_mean, agent.updates)
+                writer.add_scalar("q/td_abs", stats.td_abs_mean, agent.updates)
+
+    collector: SingleCarCollector | VectorCollector
+    if cars == 1:
+        collector = SingleCarCollector(train_envs, spec.train_tracks, rng, buffer,
+                                       agent_cfg.window, agent_cfg.reward_scale)  # fmt: skip
+    else:
+        collector = VectorCollector(
+            list(train_envs.items()), [int(rng.integers(2**31 - 1)) for _ in train_envs],
+            buffer, agent_cfg.window, agent_cfg.reward_scale,
+        )  # fmt: skip
     stopped_early = False
-    for episode in range(1, schedule.episodes + 1):
-        name = train_names[int(rng.integers(len(train_names)))]
-        env = train_envs[name]
-        obs, info = env.reset(seed=int(rng.integers(2**31 - 1)))
-        stack = window.reset(obs)
-        noise.reset()
-        ep_reward, steps, epsilon = 0.0, 0, 1.0
-        while True:
-            epsilon = linear_epsilon(env_steps, agent_cfg.exploration_steps)
-            action, _ = noise(agent.act(stack), epsilon)
-            next_obs, reward, terminated, truncated, info = env.step(action)
-            buffer.add(
-                obs, action, float(reward) * agent_cfg.reward_scale, next_obs,
-                bool(terminated), bool(truncated),
-            )  # fmt: skip
-            env_steps += 1
-            steps += 1
-            ep_reward += float(reward)
-            if env_steps >= agent_cfg.learning_starts and len(buffer) >= agent_cfg.batch_size:
-                update_credit += agent_cfg.updates_per_step
-                while update_credit >= 1.0:
-                    update_credit -= 1.0
-                    if agent_cfg.prioritized:
-                        frac = min(1.0, agent.updates / agent_cfg.per_beta_steps)
-                        buffer.beta = agent_cfg.per_beta0 + (1.0 - agent_cfg.per_beta0) * frac
-                    stats = agent.update(buffer.sample(agent_cfg.batch_size), buffer)
-                    if not (math.isfinite(stats.critic_loss) and math.isfinite(stats.actor_loss)):
-                        writer.close()
-                        _write_tables()
-                        raise DivergedError(
-                            f"{spec.variant} seed {spec.seed}: loss became {stats.critic_loss} / "
-                            f"{stats.actor_loss} at update {agent.updates}, episode {episode}"
-                        )
-                    if agent.updates % 250 == 0:
-                        writer.add_scalar("loss/critic", stats.critic_loss, agent.updates)
-                        writer.add_scalar("loss/actor", stats.actor_loss, agent.updates)
-                        writer.add_scalar("q/mean", stats.q_mean, agent.updates)
-                        writer.add_scalar("q/td_abs", stats.td_abs_mean, agent.updates)
-            if terminated or truncated:
-                break
-            obs = next_obs
-            stack = window.push(obs)
-        seconds = time.perf_counter() - t0
-        best_train = float(info.get("best_lap_s", math.nan))
-        episodes_rows.append({
-            "episode": episode, "track": name, "reward": ep_reward, "steps": steps,
-            "env_steps": env_steps, "updates": agent.updates, "laps": int(info.get("laps", 0)),
-            "best_lap_s": best_train, "damage": float(info.get("damage", 0.0)),
-            "termination": str(info.get("termination") or ""), "epsilon": epsilon,
-            "seconds": seconds,
-        })  # fmt: skip
-        writer.add_scalar("train/reward", ep_reward, env_steps)
-        writer.add_scalar("train/steps", steps, env_steps)
-        writer.add_scalar("train/laps", int(info.get("laps", 0)), env_steps)
-        writer.add_scalar("train/epsilon", epsilon, env_steps)
-        if episode % schedule.test_every_episodes == 0 or episode == schedule.episodes:
-            run_tests()
-        if progress is not None:
-            answer = progress({
-                "episode": episode, "episodes": schedule.episodes,
-                "best_lap_s": _nan_to_none(best_key_lap), "env_steps": env_steps,
-                "updates": agent.updates, "seconds": time.perf_counter() - t0,
+    epsilon = 1.0
+    while episode < schedule.episodes and not stopped_early:
+        for car in collector.started:
+            noises[car].reset()
+        epsilon = linear_epsilon(env_steps, agent_cfg.exploration_steps)
+        if not agent_cfg.uses_action_noise:  # SAC explores by sampling its own policy
+            actions = [agent.explore(window) for window in collector.windows]
+        elif cars == 1:
+            actions = [noises[0](agent.act(collector.windows[0]), epsilon)[0]]
+        else:
+            greedy = _greedy_actions(agent, collector.windows)
+            actions = [noises[car](greedy[car], epsilon)[0] for car in range(cars)]
+        finished = collector.step(actions)
+        env_steps += collector.stored
+        learn(collector.stored)
+        for ended in finished:
+            episode += 1
+            seconds = time.perf_counter() - t0
+            episodes_rows.append({
+                "episode": episode, "track": ended.track, "reward": ended.reward,
+                "steps": ended.steps, "env_steps": env_steps, "updates": agent.updates,
+                "laps": ended.laps, "best_lap_s": ended.best_lap_s, "damage": ended.damage,
+                "termination": ended.termination, "epsilon": epsilon, "seconds": seconds,
             })  # fmt: skip
-            if answer is False:
-                stopped_early = True
+            writer.add_scalar("train/reward", ended.reward, env_steps)
+            writer.add_scalar("train/steps", ended.steps, env_steps)
+            writer.add_scalar("train/laps", ended.laps, env_steps)
+            writer.add_scalar("train/epsilon", epsilon, env_steps)
+            if episode % schedule.test_every_episodes == 0 or episode == schedule.episodes:
+                run_tests()
+            if progress is not None:
+                answer = progress({
+                    "episode": episode, "episodes": schedule.episodes,
+                    "best_lap_s": _nan_to_none(best_key_lap), "env_steps": env_steps,
+                    "updates": agent.updates, "seconds": time.perf_counter() - t0,
+                })  # fmt: skip
+                if answer is False:
+                    stopped_early = True
+            if stopped_early or episode == schedule.episodes:
                 break
     if stopped_early and not test_table:
         run_tests()
@@ -235,6 +294,8 @@ def train(
         "seconds": time.perf_counter() - t0,
         "stopped_early": stopped_early,
     }
+    if demo_summary is not None:  # who demonstrated: the report's "with demos" label needs it
+        summary["demos"] = demo_summary
     folder.write_summary(summary)
     for e in list(train_envs.values()) + list(test_envs.values()):
         e.close()

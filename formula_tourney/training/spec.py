@@ -5,10 +5,16 @@ trial, the ``train`` command's options) into a :class:`RunSpec`; it runs in the 
 so a bad value fails before anything is written. The spec travels to workers as JSON, is what a
 job folder's ``config.json`` and a checkpoint hold, and is never re-defaulted downstream.
 
-A spec is made of four owned parts: the agent's configuration (``agents.variants.AgentConfig``),
-the env's settings (``sim.config.EnvSettings``), the reference line and LAC, and the schedule.
-Keys an env override would share with the run (``lac``, ``max_steps``, ...) are not env settings
-at all, so setup and override can never both set one.
+A spec is made of five owned parts: the agent's configuration (``agents.variants.AgentConfig``),
+the env's settings (``sim.config.EnvSettings``), the reference line and LAC, the schedule (with
+``cars``, how many cars drive into the one replay buffer) and the optional demonstrations
+(:class:`DemoSettings`). Keys an env override would share with the run (``lac``, ``max_steps``,
+...) are not env settings at all, so setup and override can never both set one.
+
+Settings added after results layout 2 (``schedule.cars``, ``demos``) are left out of
+:meth:`RunSpec.to_json` while at their defaults: a default run's ``config.json``, checkpoints and
+:meth:`RunSpec.digest` are byte for byte what they were before those settings existed, so a
+resumed tournament still recognises its finished jobs.
 """
 
 from __future__ import annotations
@@ -19,7 +25,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from formula_tourney.agents.variants import AgentConfig, get_variant
 from formula_tourney.errors import UserInputError
@@ -65,9 +71,52 @@ class Schedule(_Frozen):
     save_test_checkpoints: bool = Field(
         False, description="Keep a checkpoint ep-<N>.pt at every test, not only best and last."
     )
+    cars: int = Field(
+        1,
+        ge=1,
+        le=1024,
+        description="Cars driven at once into the one replay buffer (FormulaRacingVectorEnv, "
+        "each car its own episodes, windows and n-step sums). 1: one FormulaRacing-v0 env with "
+        "a train track drawn per episode (the paper's loop). With several train tracks the "
+        "cars are split over them as evenly as possible, each keeping its track for the whole "
+        "run (so cars must be 1 or >= the number of tracks). `episodes` and "
+        "`test_every_episodes` count "
+        "finished car-episodes; the agent's `updates_per_step` stays updates per stored "
+        "transition (car-step), so a step of N cars earns N times as many updates.",
+    )
 
 
 SCHEDULE_KEYS: tuple[str, ...] = tuple(Schedule.model_fields)
+
+DEMO_BOT = "follower"
+"""The bot that drives demonstrations (``bots.follower``, our Tita)."""
+
+
+class DemoSettings(_Frozen):
+    """Demonstrations: the follower bot's laps seed a second buffer that every batch draws from."""
+
+    laps: int = Field(
+        3, ge=1, le=1000, description="Timed laps the follower drives on each train track, in "
+        "the env the agent trains in (its random starts, max_steps, reward and observation).",
+    )  # fmt: skip
+    line: Reference = Field(
+        "mincurv", description="The line the follower drives: centre, mincurv or recorded "
+        "(the run's own reference line stays the reward's and the observation's).",
+    )  # fmt: skip
+    batch_fraction: float = Field(
+        0.5, ge=0.0, lt=1.0, description="Share of every batch drawn from the demonstrations "
+        "(round(batch_size * fraction) rows); 0.5 is RLPD's symmetric sampling, 0 keeps the "
+        "demonstrations for the behaviour-cloning warm start only.",
+    )  # fmt: skip
+    bc_steps: int = Field(
+        0, ge=0, le=1_000_000, description="Behaviour-cloning warm start: Adam steps on the "
+        "actor's MSE to the demonstrated actions before RL starts (0 = off).",
+    )  # fmt: skip
+    bc_lr: float = Field(1e-3, gt=0.0, description="Adam learning rate of the BC warm start.")
+
+    def demo_rows(self, batch_size: int) -> int:
+        """Rows of a batch of ``batch_size`` drawn from the demonstrations."""
+        return int(round(batch_size * self.batch_fraction))
 
 
 class RunSpec(_Frozen):
@@ -96,6 +145,26 @@ class RunSpec(_Frozen):
     threads: int = Field(
         1, ge=1, le=256, description="torch threads in this process (one per worker measured best)."
     )
+    demos: DemoSettings | None = Field(
+        None, description="Demonstrations by the follower bot (None: none, the paper's runs)."
+    )
+
+    @model_validator(mode="after")
+    def _consistent(self) -> RunSpec:
+        tracks = len(dict.fromkeys(self.train_tracks))
+        if self.schedule.cars > 1 and self.schedule.cars < tracks:
+            raise ValueError(
+                f"schedule.cars ({self.schedule.cars}) must be 1 or at least the number of "
+                f"train tracks ({tracks}): each track needs a car"
+            )
+        if self.demos is not None:
+            rows = self.demos.demo_rows(self.agent.batch_size)
+            if rows >= self.agent.batch_size:
+                raise ValueError(
+                    f"demos.batch_fraction {self.demos.batch_fraction} leaves no online rows "
+                    f"in a batch of {self.agent.batch_size}"
+                )
+        return self
 
     @field_validator("train_tracks", "test_tracks")
     @classmethod
@@ -110,9 +179,27 @@ class RunSpec(_Frozen):
         first = self.train_tracks[0]
         return first if first in self.test_tracks else self.test_tracks[0]
 
+    def beyond_paper(self) -> list[str]:
+        """What this run adds to the paper's setup, for the "beyond paper" label of every table:
+        a family beyond the paper's, demonstrations, more than one car per learner."""
+        out = []
+        if self.agent.beyond_paper:
+            out.append(self.agent.family)
+        if self.demos is not None:
+            out.append(f"demos ({DEMO_BOT} on {self.demos.line})")
+        if self.schedule.cars > 1:
+            out.append(f"{self.schedule.cars} cars")
+        return out
+
     def to_json(self) -> dict[str, Any]:
-        """Plain JSON data (what config.json, checkpoints and worker messages carry)."""
-        return self.model_dump(mode="json")
+        """Plain JSON data (what config.json, checkpoints and worker messages carry); settings
+        newer than layout 2 are left out at their defaults (module docstring)."""
+        data = self.model_dump(mode="json")
+        if data["demos"] is None:
+            del data["demos"]
+        if data["schedule"]["cars"] == 1:
+            del data["schedule"]["cars"]
+        return data
 
     def digest(self) -> str:
         """Short hash of the spec: a resumed tournament compares it to tell a changed file."""
@@ -147,6 +234,7 @@ def build_run_spec(
     seed: int = 0,
     device: str = "auto",
     threads: int = 1,
+    demos: Mapping[str, Any] | DemoSettings | None = None,
     track_base_dir: Path | None = None,
     source: str = "run settings",
 ) -> RunSpec:
@@ -156,7 +244,8 @@ def build_run_spec(
     ``env_overrides`` keys of ``sim.config.EnvSettings``. An env override of a key the run owns
     (``lac``, ``max_steps``, ...) is refused with where to set it instead. Track names are checked
     (not built) by ``sim.catalog.check_track_name``; relative file paths resolve against
-    ``track_base_dir``.
+    ``track_base_dir``. ``demos`` holds keys of :class:`DemoSettings` (an empty mapping takes
+    its defaults; None: no demonstrations).
     """
     agent = get_variant(variant, dict(overrides or {}))
     env = _env_settings(env_overrides, source)
@@ -173,6 +262,7 @@ def build_run_spec(
             variant=variant, agent=agent, env=env, train_tracks=tuple(trains),
             test_tracks=tuple(tests), reference=reference, lac=lac,
             schedule=Schedule(**dict(schedule or {})), seed=seed, device=device, threads=threads,
+            demos=demos if demos is None or isinstance(demos, DemoSettings) else dict(demos),
         )  # fmt: skip
     except ValidationError as err:
         raise UserInputError(f"{source}: {_problems(err)}") from None

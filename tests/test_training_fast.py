@@ -1,0 +1,291 @@
+"""Many cars per learner and learning from the bots (issue 11, items 1 and 2), with numbers.
+
+N-car collection against N one-car collections transition by transition, the update-to-data
+ratio's update count, the demonstrations' share of a batch, the follower's laps in the
+demonstration buffer, the behaviour-cloning warm start, and the default run against numbers
+recorded before these settings existed.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from formula_tourney.agents.ddpg import DDPGAgent
+from formula_tourney.agents.replay import (
+    DemoMix,
+    OnlinePriorities,
+    PrioritizedReplayBuffer,
+    ReplayBuffer,
+)
+from formula_tourney.agents.variants import get_variant
+from formula_tourney.errors import UserInputError
+from formula_tourney.sim.env import FormulaRacingEnv, FormulaRacingVectorEnv
+from formula_tourney.sim.track import Track
+from formula_tourney.training import envs as run_envs
+from formula_tourney.training import loop
+from formula_tourney.training import spec as run_spec
+from formula_tourney.training.collect import SingleCarCollector, VectorCollector, split_cars
+from formula_tourney.training.demos import behaviour_clone, collect_demonstrations
+from formula_tourney.training.spec import RunSpec, build_run_spec
+
+SMALL = {
+    "hidden": [32, 32], "batch_size": 32, "learning_starts": 40, "buffer_size": 2000,
+    "exploration_steps": 200,
+}  # fmt: skip
+
+
+def _ring(name: str) -> Track:
+    a = np.linspace(0.0, 2 * np.pi, 400, endpoint=False)
+    return Track.from_centreline(name, 80 * np.cos(a), 80 * np.sin(a), 6.0, 6.0)
+
+
+@pytest.fixture
+def ring_tracks(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(run_envs, "load_track", _ring)
+    monkeypatch.setattr(run_spec, "check_track_name", lambda name, base_dir=None: name)
+
+
+def _scripted(car: int, obs: np.ndarray) -> np.ndarray:
+    """A deterministic driver per car from its observation alone; car 2 steers to full lock
+    (it leaves the track: terminated episodes), the others weave until max_steps."""
+    steer = 1.0 if car == 2 else 0.5 * math.sin(3.0 * float(obs[0]) + car)
+    return np.array([steer, 0.6 + 0.1 * car, 0.0], np.float32)
+
+
+# --- item 1: many cars per learner --------------------------------------------------------------
+def test_n_car_collection_equals_n_single_car_collections() -> None:
+    """Each lane of the N-car buffer holds exactly what one car alone would have stored: the
+    same observations, actions, rewards, ends, and the same n-step sums, discounts and windows
+    (which therefore never mix cars or episodes), through a buffer wrap-around."""
+    n_cars, lane, steps, scale = 3, 23, 70, 0.5
+    config = {"track": _ring("ring"), "max_steps": 9, "random_start": False}
+    kw = dict(gamma=0.9, n_step=3, window=4, bootstrap_on_truncation=True, seed=0)
+    shared = ReplayBuffer(n_cars * lane, 29, 3, lanes=n_cars, **kw)  # type: ignore[arg-type]
+    vec = VectorCollector([("ring", FormulaRacingVectorEnv(n_cars, config))], [0], shared, 4, scale)
+    stored = np.zeros(n_cars, int)
+    ends = {"terminated": 0, "truncated": 0}
+    for _ in range(steps):
+        live = ~vec.needs_reset
+        actions = [_scripted(c, win[-1]) for c, win in enumerate(vec.windows)]
+        finished = vec.step(actions)
+        stored += live
+        for ep in finished:
+            ends["truncated" if ep.termination == "max_steps" else "terminated"] += 1
+    assert ends["terminated"] > 0 and ends["truncated"] > 0 and stored.min() > lane  # wrapped
+    for car in range(n_cars):
+        alone = ReplayBuffer(lane, 29, 3, **kw)  # type: ignore[arg-type]
+        one = SingleCarCollector({"ring": FormulaRacingEnv(config)}, ["ring"],
+                                 np.random.default_rng(car), alone, 4, scale)  # fmt: skip
+        for _ in range(stored[car]):
+            one.step([_scripted(car, one.windows[0][-1])])
+        local = np.arange(lane)
+        a = shared.gather(car * lane + local, np.ones(lane))
+        b = alone.gather(local, np.ones(lane))
+        for name in ("observations", "actions", "rewards", "next_observations", "discounts",
+                     "action_windows", "next_action_windows", "n_steps"):  # fmt: skip
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+        rows = slice(car * lane, (car + 1) * lane)
+        for name in ("terminated", "truncated", "step_in_episode"):
+            np.testing.assert_array_equal(getattr(shared, name)[rows], getattr(alone, name))
+        # the same episodes, under ids unique over all lanes
+        same = shared.episode[rows][:, None] == shared.episode[rows][None, :]
+        assert (same == (alone.episode[:, None] == alone.episode[None, :])).all()
+    owners = {int(e): k // lane for k, e in enumerate(shared.episode)}
+    assert len(owners) == len(set(shared.episode.tolist()))  # no episode id in two lanes
+
+
+def test_cars_split_over_train_tracks_and_need_one_each(ring_tracks) -> None:
+    assert split_cars(5, ["a", "b", "a"]) == [("a", 3), ("b", 2)]
+    with pytest.raises(UserInputError, match="at least the number of train tracks"):
+        build_run_spec(variant="WIN1", train_tracks=["a", "b", "c"], schedule={"cars": 2})
+
+
+@pytest.mark.parametrize("ratio", [0.5, 2.0])
+def test_updates_per_step_counts_updates_per_stored_transition_over_all_cars(
+    tmp_path, ring_tracks, ratio: float
+) -> None:
+    spec = build_run_spec(
+        variant="WIN1", overrides={**SMALL, "updates_per_step": ratio}, train_tracks=["ringA"],
+        schedule={"episodes": 8, "max_steps": 40, "test_every_episodes": 8, "test_starts": 1,
+                  "test_max_steps": 30, "cars": 3}, device="cpu", seed=2,
+    )  # fmt: skip
+    summary = loop.train(spec, tmp_path / "job")
+    eps = pd.read_parquet(tmp_path / "job" / "episodes.parquet")
+    assert list(eps.episode) == list(range(1, 9)) and summary["episodes"] == 8
+    # learning starts at the transition reaching learning_starts (40): ratio x transitions since
+    expected = np.floor(ratio * np.maximum(0, eps.env_steps - 40 + 1)).astype(int)
+    assert list(eps.updates) == list(expected) and eps.updates.iloc[-1] > 0
+    # a car-step is a transition; an autoreset step of a car stores none
+    assert (eps.env_steps.diff().dropna() >= 0).all()
+    assert eps.env_steps.iloc[-1] >= eps.steps.sum()
+    assert summary["updates"] == int(np.floor(ratio * (summary["env_steps"] - 40 + 1)))
+
+
+def test_many_car_run_is_deterministic_and_records_its_cars(tmp_path, ring_tracks) -> None:
+    spec = build_run_spec(
+        variant="MS2", overrides=SMALL, train_tracks=["ringA", "ringB"], device="cpu", seed=4,
+        schedule={"episodes": 5, "max_steps": 30, "test_every_episodes": 5, "test_starts": 1,
+                  "test_max_steps": 30, "cars": 4},
+    )  # fmt: skip
+    loop.train(spec, tmp_path / "a")
+    loop.train(spec, tmp_path / "b")
+    ea, eb = (pd.read_parquet(tmp_path / x / "episodes.parquet") for x in ("a", "b"))
+    pd.testing.assert_frame_equal(ea.drop(columns="seconds"), eb.drop(columns="seconds"))
+    assert set(ea.track) == {"ringA", "ringB"}
+    config = json.loads((tmp_path / "a" / "config.json").read_text())["run_spec"]
+    assert config["schedule"]["cars"] == 4 and RunSpec.from_json(config, "config") == spec
+
+
+# --- defaults: today's runs bit for bit ----------------------------------------------------------
+RECORDED = {  # episodes and tests of two default runs, recorded before cars and demos existed
+    "WIN4": {"tracks": ["ringA", "ringB", "ringB", "ringA"],
+             "steps": [19, 22, 17, 22], "updates": [0, 2, 19, 41],
+             "reward": [66.195669, 76.72883, 57.71463, 119.540001],
+             "test_reward": [66.121104, 67.128136, 66.121104, 67.128136, 75.797892, 76.837847,
+                             75.797892, 76.837847]},
+    "PER40k": {"tracks": ["ringA", "ringB", "ringB", "ringA"],
+               "steps": [19, 22, 17, 22], "updates": [0, 2, 19, 41],
+               "reward": [68.276014, 78.714586, 59.60975, 107.242894],
+               "test_reward": [69.082331, 70.086831, 69.082331, 70.086831, 60.694924, 61.713921,
+                               60.694924, 61.713921]},
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("variant", ["WIN4", "PER40k"])
+def test_default_run_reproduces_the_numbers_recorded_before(tmp_path, ring_tracks, variant) -> None:
+    """Rewards are rounded to 1e-6 here; the by-hand check compared whole files bit for bit."""
+    spec = build_run_spec(
+        variant=variant, overrides={**SMALL, **({"n_step": 2} if variant == "PER40k" else {})},
+        train_tracks=["ringA", "ringB"], device="cpu", seed=5,
+        schedule=dict(episodes=4, max_steps=60, test_every_episodes=2, test_starts=2,
+                      test_max_steps=70),
+    )  # fmt: skip
+    want = RECORDED[variant]
+    # the new settings stay out of config.json and the tournament's hash at their defaults
+    assert "demos" not in spec.to_json() and "cars" not in spec.to_json()["schedule"]
+    loop.train(spec, tmp_path / "job")
+    eps = pd.read_parquet(tmp_path / "job" / "episodes.parquet")
+    tests = pd.read_parquet(tmp_path / "job" / "tests.parquet")
+    assert eps.track.tolist() == want["tracks"] and eps.steps.tolist() == want["steps"]
+    assert eps.updates.tolist() == want["updates"]
+    assert [round(x, 6) for x in eps.reward] == want["reward"]
+    assert [round(x, 6) for x in tests.reward] == want["test_reward"]
+    assert "demos" not in json.loads((tmp_path / "job" / "summary.json").read_text())
+
+
+# --- item 2: learning from the bots -------------------------------------------------------------
+def _filled(buf: ReplayBuffer, n: int, marker: float) -> ReplayBuffer:
+    for t in range(n):
+        buf.add(np.full(buf.obs_dim, t, np.float32), np.full(3, marker), marker,
+                np.full(buf.obs_dim, t + 1.0), False, t == n - 1)  # fmt: skip
+    return buf
+
+
+@pytest.mark.parametrize("prioritized", [False, True])
+def test_demo_share_of_a_batch_equals_the_setting(prioritized: bool) -> None:
+    spec = build_run_spec(variant="WIN1", overrides={"batch_size": 64}, train_tracks=["oval"],
+                          demos={"batch_fraction": 0.25})  # fmt: skip
+    rows = spec.demos.demo_rows(64)  # type: ignore[union-attr]
+    assert rows == 16
+    online_cls = PrioritizedReplayBuffer if prioritized else ReplayBuffer
+    online = _filled(online_cls(500, 2, 3, seed=1), 300, 0.1)
+    demos = _filled(ReplayBuffer(100, 2, 3, seed=2), 80, 0.9)
+    mix = DemoMix(online, demos, rows)
+    for _ in range(20):
+        batch = mix.sample(64)
+        assert batch.from_demos is not None and batch.from_demos.sum() == 16
+        np.testing.assert_array_equal(batch.actions[:, 0] == np.float32(0.9), batch.from_demos)
+        assert batch.observations.shape == (64, 1, 2) and batch.weights[48:].tolist() == [1] * 16
+    sink = mix.priorities(64)
+    assert (sink is None) == (not prioritized)
+    if prioritized:  # priorities reach only the online rows' slots
+        assert isinstance(sink, OnlinePriorities)
+        before = online.tree.values(np.arange(300)).copy()
+        p = sink.update_priorities(batch.indices, np.full(64, 2.0), np.zeros((64, 3)))
+        assert len(p) == 48
+        changed = np.nonzero(online.tree.values(np.arange(300)) != before)[0]
+        assert set(changed) == set(batch.indices[:48].tolist())
+
+
+def _demo_spec(cars: int = 1, **demos: object) -> RunSpec:
+    return build_run_spec(
+        variant="MS2", overrides={**SMALL, "window": 2}, train_tracks=["ringA"], device="cpu",
+        seed=1, schedule={"episodes": 3, "max_steps": 400, "test_every_episodes": 3,
+                          "test_starts": 1, "test_max_steps": 40, "cars": cars},
+        demos={"laps": 2, "line": "centre", **demos},
+    )  # fmt: skip
+
+
+def test_demo_transitions_are_the_followers_laps_in_the_training_env(ring_tracks) -> None:
+    spec = _demo_spec()
+    envs = run_envs.RunEnvs(spec)
+    demo = collect_demonstrations(spec, envs, 29, 3, seed=np.random.SeedSequence(9))
+    drive = demo.drives["ringA"]
+    assert len(drive.lap_times_s) >= 2 and demo.transitions == drive.steps == len(demo.buffer)
+    assert math.isfinite(demo.key_lap_s) and demo.key_lap_s == drive.best_lap_s
+    summary = demo.summary("ringA")
+    assert summary["bot"] == "follower" and summary["line"] == "centre"
+    assert summary["lap_s"] == demo.key_lap_s and summary["transitions"] == drive.steps
+    # replaying the stored actions in the training env from the same resets gives the stored
+    # observations and the env's own rewards (scaled as the agent's)
+    buf, scale = demo.buffer, spec.agent.reward_scale
+    rng = np.random.default_rng(np.random.SeedSequence(9).spawn(2)[0])
+    env = envs.make("ringA", test=False)
+    assert env.unwrapped.config["max_steps"] == 400 and env.unwrapped.config["random_start"]
+    for k in range(len(buf)):
+        if k == 0 or buf.episode[k] != buf.episode[k - 1]:
+            obs, _ = env.reset(seed=int(rng.integers(2**31 - 1)))
+        np.testing.assert_array_equal(buf.obs[k], obs)
+        obs, reward, terminated, truncated, _ = env.step(buf.actions[k])
+        np.testing.assert_array_equal(buf.next_obs[k], obs)
+        assert buf.rewards[k] == np.float32(float(reward) * scale)
+        assert (buf.terminated[k], buf.truncated[k]) == (terminated, truncated)
+    # the buffer applies the agent's n-step and window rules to them
+    batch = buf.gather(np.arange(len(buf)), np.ones(len(buf)))
+    assert batch.observations.shape == (len(buf), 2, 29) and batch.n_steps.max() == 2
+
+
+def test_behaviour_cloning_fits_the_actor_to_the_demonstrated_actions(ring_tracks) -> None:
+    spec = _demo_spec(bc_steps=300)
+    demo = collect_demonstrations(spec, run_envs.RunEnvs(spec), 29, 3, np.random.SeedSequence(3))
+    agent = DDPGAgent(spec.agent, 29, 3, device="cpu", seed=0)
+    before, after = behaviour_clone(agent, demo.buffer, 300, 32, 1e-3)
+    actions = demo.buffer.actions[: len(demo.buffer)]
+    constant = float(actions.var(axis=0).mean())  # the best action-blind guess: the mean
+    assert after < 0.5 * before and after < constant  # measured: 0.079 -> 0.028 (mean: 0.036)
+    for p, q in zip(agent.actor.parameters(), agent.actor_target.parameters(), strict=True):
+        assert torch.equal(p, q)
+        assert p.grad is not None and not p.grad.any()
+    info = agent.update(demo.buffer.sample(32))  # the agent still learns after BC
+    assert math.isfinite(info.critic_loss) and agent.updates == 1
+
+
+def test_a_run_with_demos_records_who_demonstrated(tmp_path, ring_tracks) -> None:
+    spec = _demo_spec(cars=2, batch_fraction=0.5, bc_steps=20)  # demos with two cars, too
+    summary = loop.train(spec, tmp_path / "job")
+    assert summary["updates"] > 0
+    demos = summary["demos"]
+    assert demos["bot"] == "follower" and demos["line"] == "centre" and demos["track"] == "ringA"
+    assert demos["lap_s"] > 0 and demos["laps"] >= 2 and demos["transitions"] > 0
+    assert demos["bc_mse_after"] < demos["bc_mse_before"]
+    on_disk = json.loads((tmp_path / "job" / "summary.json").read_text())
+    assert on_disk["demos"] == demos
+    config = json.loads((tmp_path / "job" / "config.json").read_text())["run_spec"]
+    assert config["demos"]["line"] == "centre" and config["demos"]["batch_fraction"] == 0.5
+    with pytest.raises(UserInputError, match="batch_fraction"):
+        _demo_spec(batch_fraction=1.0)
+
+
+def test_demo_agent_update_takes_the_mixed_batch() -> None:
+    online = _filled(PrioritizedReplayBuffer(500, 29, 3, seed=1), 200, 0.1)
+    demos = _filled(ReplayBuffer(100, 29, 3, seed=2), 60, 0.9)
+    mix = DemoMix(online, demos, 8)
+    agent = DDPGAgent(get_variant("PER40k", {"hidden": [16, 16], "batch_size": 32}), 29, 3)
+    agent.update(mix.sample(32), mix.priorities(32))
+    assert agent.last_priorities is not None and len(agent.last_priorities) == 24
