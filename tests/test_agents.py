@@ -298,3 +298,26 @@ def test_deepcopy_is_an_independent_agent_that_keeps_learning(name: str) -> None
             torch.testing.assert_close(p, q)
     assert any(not torch.equal(p, q) for p, q in
                zip(clone.actor_target.parameters(), before, strict=True))  # fmt: skip
+
+
+def test_held_brake_exploration_brakes_for_a_hairpins_length() -> None:
+    """Beyond the paper: brake_explore_hold_steps > 1 holds a fired brake exploration (with one
+    drawn pressure) for up to that many steps; 1 is the paper's rule, stream for stream."""
+    actor = np.array([0.0, 0.9, 0.05])
+
+    def run(**kw: int) -> tuple[np.ndarray, np.ndarray]:
+        noise = BrakeExplorationNoise(np.random.default_rng(4), **kw)
+        out = [noise(actor, 1.0) for _ in range(3000)]
+        return np.array([o[0] for o in out]), np.array([o[1].brake_explored for o in out])
+
+    paper, paper_events = run()
+    same, _ = run(brake_hold_steps=1)
+    np.testing.assert_array_equal(paper, same)
+    held, events = run(brake_hold_steps=15)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], events.astype(int), [0]])))
+    lengths = edges[1::2] - edges[::2]
+    paper_edges = np.flatnonzero(np.diff(np.concatenate([[0], paper_events.astype(int), [0]])))
+    assert (paper_edges[1::2] - paper_edges[::2]).max() <= 4  # independent 0.1 draws
+    assert lengths.max() >= 13
+    start, stop = edges[0], edges[1]
+    assert np.ptp(held[start:stop, 2]) < 1e-6 and np.all(held[start:stop, 1] == 0.0)

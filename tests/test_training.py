@@ -300,3 +300,22 @@ def test_run_spec_says_what_goes_beyond_the_paper(ring_tracks) -> None:
     spec = build_run_spec(variant="SAC", train_tracks=["ringA", "ringB"],
                           schedule={"cars": 4}, demos={"laps": 1, "line": "centre"})
     assert spec.beyond_paper() == ["SAC", "demos (follower on centre)", "4 cars"]
+
+
+def test_paper_preset_is_the_registered_variant_and_others_are_labelled(ring_tracks) -> None:
+    """The paper stays reproducible: its preset changes nothing of the ten variants."""
+    from formula_tourney.agents.variants import VARIANTS
+
+    for name, registered in VARIANTS.items():
+        spec = build_run_spec(variant=name, train_tracks=["ringA"], preset="paper")
+        assert spec.agent == registered and spec.demos is None and spec.beyond_paper() == []
+        assert "preset" not in spec.to_json()
+    fast = build_run_spec(variant="PER1M", train_tracks=["ringA"], preset="fast",
+                          overrides={"batch_size": 128})
+    assert (fast.agent.batch_size, fast.agent.exploration_steps) == (128, 40_000)  # user wins
+    assert fast.agent.buffer_size == 200_000 and fast.beyond_paper() == ["preset fast"]
+    demos = build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="fast-demos")
+    assert demos.demos.laps == 3 and demos.demos.line == "mincurv"
+    assert RunSpec.from_json(demos.to_json(), "round trip") == demos
+    with pytest.raises(UserInputError, match="unknown preset 'quick'; known presets: paper"):
+        build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="quick")

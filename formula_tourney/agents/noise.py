@@ -81,8 +81,12 @@ class BrakeExplorationNoise:
         brake_prob: float = 0.1,
         brake_mean: float = 0.5,
         brake_sigma: float = 0.2,
+        brake_hold_steps: int = 1,
     ) -> None:
         self.rng = rng
+        self.brake_hold_steps = int(brake_hold_steps)
+        self._hold_left = 0
+        self._hold_target = 0.0
         self.ou = OrnsteinUhlenbeck(np.asarray(ou_theta), np.asarray(ou_sigma), rng)
         self.noise_prob = noise_prob
         self.brake_prob = brake_prob
@@ -91,6 +95,7 @@ class BrakeExplorationNoise:
 
     def reset(self) -> None:
         self.ou.reset()
+        self._hold_left = 0
 
     def __call__(self, action: np.ndarray, epsilon: float) -> tuple[np.ndarray, NoiseEvent]:
         """Return the explored action (clipped to the action box) and what was done."""
@@ -101,8 +106,19 @@ class BrakeExplorationNoise:
         if epsilon <= 0.0:
             return action.astype(np.float32), NoiseEvent(np.zeros(3, bool), False)
         out = action + epsilon * ou * mask
+        if self.brake_hold_steps > 1:
+            # beyond the paper: a fired brake exploration is held for a drawn number of steps,
+            # since a hairpin needs 8-13 steps of braking that single-step events never show
+            # (benchmarks/braking_exploration.py); the paper's rule is hold = 1
+            if self._hold_left > 0:
+                self._hold_left -= 1
+                brake_explored = True
+            elif brake_explored:
+                self._hold_left = int(self.rng.integers(self.brake_hold_steps))
+                self._hold_target = self.brake_mean + self.brake_sigma * self.rng.standard_normal()
         if brake_explored:
-            target_brake = self.brake_mean + self.brake_sigma * self.rng.standard_normal()
+            target_brake = (self._hold_target if self.brake_hold_steps > 1
+                            else self.brake_mean + self.brake_sigma * self.rng.standard_normal())
             out[BRAKE] = action[BRAKE] + epsilon * (target_brake - action[BRAKE])
             out[THROTTLE] = action[THROTTLE] * (1.0 - epsilon)
             mask = mask.copy()

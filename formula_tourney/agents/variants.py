@@ -206,6 +206,14 @@ class AgentConfig(BaseModel):
     brake_explore_sigma: float = Field(
         0.2, ge=0.0, description="Gaussian spread of the brake exploration's brake pressure."
     )
+    brake_explore_hold_steps: int = Field(
+        1,
+        ge=1,
+        le=100,
+        description="Beyond the paper: a brake exploration, once fired, is held for a number of "
+        "steps drawn from 1..this (1: the paper's single-step rule). A hairpin needs 8-13 steps "
+        "of braking that single-step events never produce (benchmarks/braking_exploration.py).",
+    )
 
     @model_validator(mode="after")
     def _consistent(self) -> AgentConfig:

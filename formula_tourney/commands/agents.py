@@ -79,6 +79,9 @@ def register(app: typer.Typer) -> None:
         env_set: list[str] = typer.Option(  # noqa: B006
             [], "--env-set", help="FormulaRacing-v0 config override key=value (repeatable)."
         ),
+        preset: str = typer.Option(
+            "paper", help="Settings preset: paper (the paper's), fast, fast-demos (beyond it)."
+        ),
         cars: int = typer.Option(1, help="Cars driving into the one replay buffer."),
         demo_laps: int = typer.Option(
             0, "--demo-laps", help="Follower laps per train track seeding a demonstration buffer "
@@ -104,7 +107,7 @@ def register(app: typer.Typer) -> None:
                       "test_max_steps": test_max_steps, "cars": cars},
             demos={"laps": demo_laps, "line": demo_line, "batch_fraction": demo_fraction,
                    "bc_steps": bc_steps} if demo_laps > 0 else None,
-            source="train options",
+            preset=preset, source="train options",
         )  # fmt: skip
         if JobFolder(out).is_finished():
             raise UserInputError(f"{out} holds a finished run (summary.json); choose another --out")

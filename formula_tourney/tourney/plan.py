@@ -63,14 +63,14 @@ def resolve_variant(spec: Tournament, name: str) -> tuple[str, str, dict[str, An
 
 
 def variant_run_settings(spec: Tournament, name: str) -> dict[str, Any]:
-    """Run settings a declared variant entry sets itself (demos, cars); the nearest entry in
+    """Run settings a declared variant entry sets itself (demos, cars, preset); the nearest entry in
     its base chain wins, and they win over the part's."""
     out: dict[str, Any] = {}
     current, seen = name, set()
     while current in spec.variants and current not in seen:
         seen.add(current)
         entry = spec.variants[current]
-        for key in ("demos", "cars"):
+        for key in ("demos", "cars", "preset"):
             if key not in out and getattr(entry, key) is not None:
                 out[key] = getattr(entry, key)
         if entry.base is None or entry.base == current:
@@ -103,7 +103,7 @@ def spec_settings(settings: dict[str, Any], force_checkpoints: bool = False) -> 
         schedule["save_test_checkpoints"] = True
     out: dict[str, Any] = {"schedule": schedule, "env_overrides": settings.get("env_overrides"),
                            "demos": settings.get("demos")}
-    for key in ("device", "threads"):
+    for key in ("device", "threads", "preset"):
         if settings.get(key) is not None:
             out[key] = settings[key]
     return out

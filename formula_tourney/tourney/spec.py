@@ -92,6 +92,11 @@ class VariantEntry(_Strict):
         "labelled so); wins over the part's demos.",
     )
     cars: _unset_or(Schedule, "cars") = None
+    preset: str | None = Field(
+        None,
+        description="Named settings preset (training.presets: paper, fast, fast-demos); wins "
+        "over the part's; anything but 'paper' is labelled beyond the paper.",
+    )
 
 
 class Setup(_Strict):
@@ -181,6 +186,9 @@ class JobSettings(_Strict):
     cars: _unset_or(Schedule, "cars") = None
     demos: DemoSettings | None = Field(
         None, description="Demonstrations for every entrant here (beyond the paper)."
+    )
+    preset: str | None = Field(
+        None, description="Named settings preset for every entrant here (training.presets)."
     )
     device: _unset_or(RunSpec, "device") = None
     threads: _unset_or(RunSpec, "threads") = None

@@ -110,7 +110,7 @@ def train(
         BrakeExplorationNoise(
             np.random.default_rng(seq), agent_cfg.ou_theta, agent_cfg.ou_sigma,
             agent_cfg.noise_prob, agent_cfg.brake_explore_prob, agent_cfg.brake_explore_mean,
-            agent_cfg.brake_explore_sigma,
+            agent_cfg.brake_explore_sigma, agent_cfg.brake_explore_hold_steps,
         )
         for seq in noise_seeds
     ]  # fmt: skip

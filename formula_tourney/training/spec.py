@@ -31,6 +31,7 @@ from formula_tourney.agents.variants import AgentConfig, get_variant
 from formula_tourney.errors import UserInputError
 from formula_tourney.sim.catalog import check_track_name
 from formula_tourney.sim.config import RUN_OWNED_KEYS, EnvSettings
+from formula_tourney.training.presets import get_preset
 
 Reference = Literal["centre", "recorded", "mincurv"]
 Device = Literal["auto", "cpu", "cuda"]
@@ -148,6 +149,9 @@ class RunSpec(_Frozen):
     demos: DemoSettings | None = Field(
         None, description="Demonstrations by the follower bot (None: none, the paper's runs)."
     )
+    preset: str = Field(
+        "paper", description="The named preset (training.presets) the settings started from."
+    )
 
     @model_validator(mode="after")
     def _consistent(self) -> RunSpec:
@@ -183,6 +187,8 @@ class RunSpec(_Frozen):
         """What this run adds to the paper's setup, for the "beyond paper" label of every table:
         a family beyond the paper's, demonstrations, more than one car per learner."""
         out = []
+        if self.preset != "paper":
+            out.append(f"preset {self.preset}")
         if self.agent.beyond_paper:
             out.append(self.agent.family)
         if self.demos is not None:
@@ -199,6 +205,8 @@ class RunSpec(_Frozen):
             del data["demos"]
         if data["schedule"]["cars"] == 1:
             del data["schedule"]["cars"]
+        if data["preset"] == "paper":
+            del data["preset"]
         return data
 
     def digest(self) -> str:
@@ -235,6 +243,7 @@ def build_run_spec(
     device: str = "auto",
     threads: int = 1,
     demos: Mapping[str, Any] | DemoSettings | None = None,
+    preset: str = "paper",
     track_base_dir: Path | None = None,
     source: str = "run settings",
 ) -> RunSpec:
@@ -245,9 +254,15 @@ def build_run_spec(
     (``lac``, ``max_steps``, ...) is refused with where to set it instead. Track names are checked
     (not built) by ``sim.catalog.check_track_name``; relative file paths resolve against
     ``track_base_dir``. ``demos`` holds keys of :class:`DemoSettings` (an empty mapping takes
-    its defaults; None: no demonstrations).
+    its defaults; None: no demonstrations). ``preset`` (``training.presets``) supplies agent
+    overrides, schedule keys and demonstrations first; the caller's own settings win over it.
     """
-    agent = get_variant(variant, dict(overrides or {}))
+    chosen = get_preset(preset)
+    family = get_variant(variant).family
+    agent = get_variant(variant, {**chosen.agent_overrides(family), **dict(overrides or {})})
+    schedule = {**chosen.schedule, **dict(schedule or {})}
+    if demos is None and chosen.demos is not None:
+        demos = chosen.demos
     env = _env_settings(env_overrides, source)
     unknown = sorted(set(schedule or {}) - set(SCHEDULE_KEYS))
     if unknown:
@@ -263,6 +278,7 @@ def build_run_spec(
             test_tracks=tuple(tests), reference=reference, lac=lac,
             schedule=Schedule(**dict(schedule or {})), seed=seed, device=device, threads=threads,
             demos=demos if demos is None or isinstance(demos, DemoSettings) else dict(demos),
+            preset=preset,
         )  # fmt: skip
     except ValidationError as err:
         raise UserInputError(f"{source}: {_problems(err)}") from None
