@@ -27,9 +27,17 @@ import numpy as np  # noqa: E402
 
 from formula_tourney.agents.noise import BrakeExplorationNoise  # noqa: E402
 from formula_tourney.agents.variants import get_variant  # noqa: E402
-from formula_tourney.bots.follower import drive  # noqa: E402
+from formula_tourney.bots.follower import (
+    _car_state,  # noqa: E402
+    drive,  # noqa: E402
+)
 from formula_tourney.bots.reference import reference_offsets  # noqa: E402
 from formula_tourney.sim.catalog import load_track  # noqa: E402
+from formula_tourney.training.demos import follower_for  # noqa: E402
+from formula_tourney.training.envs import RunEnvs  # noqa: E402
+from formula_tourney.training.spec import build_run_spec  # noqa: E402
+
+GAMMA = 0.99
 
 BRAKE_THRESHOLD = 0.3
 
@@ -59,6 +67,60 @@ def exploration_runs(epsilon: float, steps: int, hold: int = 1, seed: int = 0) -
     return brake_runs(brake)
 
 
+def discounted(rewards: list[float], terminal: bool, gamma: float = GAMMA) -> float:
+    """sum_k gamma^k r_k over the drive (a crash ends it: terminal, nothing bootstraps)."""
+    return float(sum(r * gamma**k for k, r in enumerate(rewards)))
+
+
+def zone_returns(track_name: str, horizon: int = 100) -> list[dict]:
+    """For each of the follower's braking zones on the training env (recorded line + LAC, the
+    paper's best setup): the discounted return over ``horizon`` steps from the zone's start when
+    the car brakes as the follower does, against the same start when it keeps the throttle on
+    until the env ends the episode. If the reward did not make braking pay within gamma's
+    horizon, no amount of exploration could teach it."""
+    spec = build_run_spec(variant="WIN1", train_tracks=[track_name], reference="recorded",
+                          lac=True, schedule={"max_steps": 3000})  # fmt: skip
+    envs = RunEnvs(spec)
+    env = envs.make(track_name, test=True, max_steps=3000)
+    bot = follower_for(envs, track_name, "mincurv")
+    _, info = env.reset(seed=0)
+    bot.reset()
+    where, brakes = [], []
+    while True:
+        action = np.asarray(bot.act(_car_state(env)), dtype=np.float32)
+        where.append((float(info["s_m"]), float(info["speed_mps"])))
+        brakes.append(float(action[2]))
+        _, _, terminated, truncated, info = env.step(action)
+        if terminated or truncated or info["laps"] >= 1:
+            break
+    on = np.concatenate([[False], np.asarray(brakes) >= BRAKE_THRESHOLD, [False]])
+    starts = np.flatnonzero(on[1:-1] & ~on[:-2])
+    out = []
+    for k in starts:
+        if k < 10:  # the standing start
+            continue
+        s_m, speed = where[k]
+        result = {"start_s_m": round(s_m, 1), "speed_kmh": round(3.6 * speed, 1)}
+        for name, brake in (("brakes", True), ("no_brake", False)):
+            env.reset(seed=0, options={"start_s_m": s_m, "start_speed_mps": speed})
+            bot.reset()
+            rewards, terminal = [], False
+            for _ in range(horizon):
+                action = np.asarray(bot.act(_car_state(env)), dtype=np.float32)
+                if not brake:
+                    action[1], action[2] = 1.0, 0.0
+                _, reward, terminated, truncated, _ = env.step(action)
+                rewards.append(float(reward))
+                if terminated or truncated:
+                    terminal = bool(terminated)
+                    break
+            result[name] = round(discounted(rewards, terminal), 1)
+            result[f"{name}_ends"] = "crash" if terminal else "drives on"
+        out.append(result)
+    env.close()
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--track", default="technical")
@@ -86,8 +148,14 @@ def main() -> None:
     print(f"follower on {args.track} (mincurv): lap {lap['best_lap_s']:.2f} s, braking zones "
           f"{zones} steps (>= {BRAKE_THRESHOLD}), speed {speed.min():.0f}-{speed.max():.0f} km/h",
           file=sys.stderr)  # fmt: skip
+    zones_returns = zone_returns(args.track)
+    for z in zones_returns:
+        print(f"braking zone at s = {z['start_s_m']} m, {z['speed_kmh']} km/h: discounted return "
+              f"braking {z['brakes']} ({z['brakes_ends']}), not braking {z['no_brake']} "
+              f"({z['no_brake_ends']})", file=sys.stderr)  # fmt: skip
     print(json.dumps({
         "benchmark": "braking_exploration", "track": args.track,
+        "zone_returns": zones_returns, "gamma": GAMMA,
         "brake_threshold": BRAKE_THRESHOLD, "follower_lap_s": lap["best_lap_s"],
         "follower_braking_zones_steps": zones, "longest_needed_steps": longest,
         "exploration": rows, "steps": args.steps,

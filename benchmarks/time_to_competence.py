@@ -475,6 +475,12 @@ def _cell(x: float, reached: int | None = None, seeds: int | None = None) -> str
     return text if reached is None else f"{text} ({reached}/{seeds})"
 
 
+def _ratio_cell(r: float | None) -> str:
+    if r is None:
+        return "- (ours miss)"
+    return "0 (SAC miss)" if r == 0.0 else f"{r:.2f}"
+
+
 def render(result: Mapping[str, Any]) -> str:
     """The readable table (stderr)."""
     bots = result["bots"]
@@ -499,8 +505,8 @@ def render(result: Mapping[str, Any]) -> str:
             f"{s['median_clean_start_rate']:.2f}",
         ])  # fmt: skip
         if e.get("ratios_vs_sb3") is not None:
-            rows.append(["  ours / SAC", *("-" if e["ratios_vs_sb3"][n] is None
-                         else f"{e['ratios_vs_sb3'][n]:.2f}" for n in MILESTONES), "", ""])
+            rows.append(["  ours / SAC", *(_ratio_cell(e["ratios_vs_sb3"][n])
+                                           for n in MILESTONES), "", ""])  # fmt: skip
     widths = [max(len(str(r[i])) for r in [head, *rows]) for i in range(len(head))]
     fmt = "  ".join(f"{{:<{w}}}" for w in widths)
     lines += [fmt.format(*head), fmt.format(*("-" * w for w in widths))]

@@ -1,0 +1,134 @@
+"""benchmarks/time_to_competence.py's pure functions: milestones from a tests table, the
+clean-start rate, medians with misses as infinity and the goal flags. No training."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "time_to_competence.py"
+_SPEC = importlib.util.spec_from_file_location("time_to_competence", _PATH)
+ttc = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(ttc)
+
+NAN = math.nan
+
+
+def _tests(
+    rounds: list[tuple[int, list[tuple[float, float]]]], track: str = "oval"
+) -> pd.DataFrame:
+    """A tests table: per round (episode, [(best_lap_s, damage) per start])."""
+    rows = []
+    for episode, drives in rounds:
+        for k, (lap, damage) in enumerate(drives):
+            rows.append({"episode": episode, "env_steps": episode * 1000, "track": track,
+                         "start_s_m": 100.0 * k, "finished": math.isfinite(lap),
+                         "best_lap_s": lap, "laps": int(math.isfinite(lap)), "damage": damage,
+                         "reward": 0.0, "steps": 10, "termination": "max_steps",
+                         "checkpoint": "", "distance_m": 1.0})  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+# centre bot 35.4 s, mincurv bot 34.7 s
+TABLE = _tests([
+    (5, [(NAN, 0.0), (NAN, 1.0), (NAN, 0.0)]),       # nothing
+    (10, [(36.0, 0.0), (NAN, 2.0), (NAN, 0.0)]),     # a lap, but damage elsewhere: not clean
+    (15, [(36.0, 0.0), (35.8, 0.0), (NAN, 0.0)]),    # (a): clean 35.8
+    (20, [(35.2, 0.0), (35.3, 0.0), (35.1, 0.0)]),   # (b): 35.1 < 35.4
+    (25, [(34.9, 0.0), (NAN, 0.0), (NAN, 0.0)]),     # clean 34.9, not < 34.7
+    (30, [(34.6, 0.0), (34.65, 0.0), (34.5, 0.0)]),  # (c): 34.5
+])  # fmt: skip
+CPU = {5: 10.0, 10: 20.0, 15: 30.0, 20: 40.0, 25: 50.0, 30: 60.0}
+
+
+def test_milestones_first_round_below_each_limit() -> None:
+    limits = ttc.thresholds(35.4, 34.7)
+    hits = ttc.milestones(TABLE, "oval", limits, CPU, cpu_total=99.0)
+    assert hits["first_clean_lap"] == {"episode": 15, "env_steps": 15000, "lap_s": 35.8,
+                                       "cpu_s": 30.0}  # fmt: skip
+    assert hits["beat_centre_bot"]["episode"] == 20 and hits["beat_centre_bot"]["cpu_s"] == 40.0
+    assert hits["beat_mincurv_bot"]["episode"] == 30
+    assert hits["beat_mincurv_bot"]["lap_s"] == pytest.approx(34.5)
+    assert ttc.best_clean_lap(TABLE, "oval") == pytest.approx(34.5)
+
+
+def test_milestones_missed_and_other_tracks_ignored() -> None:
+    early = TABLE[TABLE["episode"] <= 20]
+    other = _tests([(5, [(30.0, 0.0)] * 3)], track="technical")
+    hits = ttc.milestones(pd.concat([early, other]), "oval", ttc.thresholds(35.4, 34.7), CPU, 0.0)
+    assert hits["beat_centre_bot"]["episode"] == 20 and hits["beat_mincurv_bot"] is None
+    empty = ttc.milestones(TABLE.iloc[:0], "oval", ttc.thresholds(35.4, 34.7), {}, 0.0)
+    assert empty == dict.fromkeys(ttc.MILESTONES)
+    assert math.isnan(ttc.best_clean_lap(TABLE.iloc[:0], "oval"))
+
+
+def test_round_without_cpu_reading_takes_the_total() -> None:
+    hits = ttc.milestones(TABLE, "oval", ttc.thresholds(35.4, 34.7), {15: 30.0}, cpu_total=77.0)
+    assert hits["first_clean_lap"]["cpu_s"] == 30.0
+    assert hits["beat_mincurv_bot"]["cpu_s"] == 77.0
+
+
+def test_demonstrator_lap_tightens_the_bot_milestones() -> None:
+    limits = ttc.thresholds(35.4, 34.7, demo_lap_s=35.0)
+    assert limits == {"first_clean_lap": math.inf, "beat_centre_bot": 35.0,
+                      "beat_mincurv_bot": 34.7}  # fmt: skip
+    hits = ttc.milestones(TABLE, "oval", limits, CPU, 0.0)
+    assert hits["beat_centre_bot"]["episode"] == 25  # 35.1 at round 20 beats the bot, not the demo
+    assert ttc.thresholds(35.4, 34.7, None) == ttc.thresholds(35.4, 34.7, NAN)
+
+
+def test_clean_start_rate_from_the_first_clean_lap_on() -> None:
+    # rounds 15..30: >= 2 clean starts in 15, 20, 30; not in 25 -> 3/4
+    assert ttc.clean_start_rate(TABLE, "oval", 15) == pytest.approx(0.75)
+    assert ttc.clean_start_rate(TABLE, "oval", 30) == 1.0
+    assert ttc.clean_start_rate(TABLE, "oval", None) is None
+    assert ttc.clean_start_rate(TABLE, "oval", 35) is None
+
+
+def test_medians_count_misses_as_infinite() -> None:
+    assert ttc.median_inf([10.0, None, 30.0]) == 30.0
+    assert ttc.median_inf([10.0, 20.0, None, None]) == math.inf
+    assert ttc.median_inf([10.0, 20.0, 40.0, None]) == 30.0
+    assert ttc.median_inf([NAN]) == math.inf and ttc.median_inf([]) == math.inf
+    assert ttc.finite(math.inf) is None and ttc.finite(12.34) == 12.3
+    assert ttc.ratio(30.0, 60.0) == 0.5
+    assert ttc.ratio(30.0, math.inf) == 0.0 and ttc.ratio(math.inf, 60.0) is None
+
+
+def _run(a: float | None, b: float | None, c: float | None, best: float | None,
+         rate: float | None) -> dict:  # fmt: skip
+    return {"cpu_s": dict(zip(ttc.MILESTONES, (a, b, c), strict=True)),
+            "best_lap_to_limit": best, "clean_start_rate": rate}  # fmt: skip
+
+
+def test_summary_and_goal_flags() -> None:
+    runs = [_run(5.0, 40.0, 200.0, 1.01, 1.0), _run(8.0, 50.0, None, 1.03, 0.5),
+            _run(9.0, 70.0, 250.0, 1.015, 1.0), _run(None, None, None, None, None)]  # fmt: skip
+    s = ttc.summarise(runs)
+    assert s["median_first_clean_lap_cpu_s"] == 8.5 and s["reached_first_clean_lap"] == 3
+    assert s["median_beat_centre_bot_cpu_s"] == 60.0
+    assert s["median_beat_mincurv_bot_cpu_s"] == math.inf and s["reached_beat_mincurv_bot"] == 2
+    assert s["median_best_lap_to_limit"] == pytest.approx(1.0225)
+    assert s["median_clean_start_rate"] == 0.75  # the seed without a clean lap counts 0
+    ratios = {"first_clean_lap": 0.2, "beat_centre_bot": 0.6, "beat_mincurv_bot": None}
+    oval = ttc.goal_flags("oval", s, ratios)
+    assert oval == {"beat_centre_bot_cpu_s": True, "beat_mincurv_bot_cpu_s": False,
+                    "best_lap_to_limit": False, "ratio_first_clean_lap": True,
+                    "ratio_beat_centre_bot": False, "ratio_beat_mincurv_bot": False}  # fmt: skip
+    tech = ttc.goal_flags("technical", s, None)
+    assert tech == {"first_clean_lap_cpu_s": True, "beat_mincurv_bot_cpu_s": False,
+                    "best_lap_to_limit": True}  # fmt: skip
+    assert ttc.goal_flags("gen-5", s, None) is None
+
+
+def test_parse_entrants() -> None:
+    assert ttc.parse_entrants("WIN1:fast, SAC:fast,") == [("WIN1", "fast"), ("SAC", "fast")]
+    for bad in ("WIN1", "WIN1:fast,WIN1:fast", "", ":fast"):
+        with pytest.raises(SystemExit):
+            ttc.parse_entrants(bad)
+    assert ttc.parse_overrides(["batch_size=32", "algorithm=sac"]) == {
+        "batch_size": 32, "algorithm": "sac"}  # fmt: skip
