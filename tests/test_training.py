@@ -9,34 +9,15 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
+from training_fixtures import SMALL
 
 from formula_tourney.agents.variants import get_variant
 from formula_tourney.errors import UserInputError
 from formula_tourney.results.layout import JOB_TABLES, SCHEMA_VERSION
-from formula_tourney.sim.track import Track
 from formula_tourney.training import envs as run_envs
 from formula_tourney.training import loop
-from formula_tourney.training import spec as run_spec
 from formula_tourney.training.evaluate import _lap_trace, start_positions
 from formula_tourney.training.spec import RunSpec, build_run_spec
-
-SMALL = {
-    "hidden": [32, 32], "batch_size": 32, "learning_starts": 40, "buffer_size": 2000,
-    "exploration_steps": 200,
-}  # fmt: skip
-
-
-def _ring(name: str) -> Track:
-    a = np.linspace(0.0, 2 * np.pi, 400, endpoint=False)
-    return Track.from_centreline(name, 80 * np.cos(a), 80 * np.sin(a), 6.0, 6.0)
-
-
-@pytest.fixture
-def ring_tracks(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Small ring tracks under any name, so these tests do not depend on the catalog."""
-    monkeypatch.setattr(run_envs, "load_track", _ring)
-    monkeypatch.setattr(run_spec, "check_track_name", lambda name, base_dir=None: name)
-
 
 SCHEDULE = dict(
     episodes=3, max_steps=60, test_every_episodes=2, test_starts=2, test_max_steps=70,

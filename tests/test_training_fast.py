@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
+from training_fixtures import SMALL, ring_track
 
 from formula_tourney.agents.ddpg import DDPGAgent
 from formula_tourney.agents.replay import (
@@ -26,29 +27,11 @@ from formula_tourney.agents.replay import (
 from formula_tourney.agents.variants import get_variant
 from formula_tourney.errors import UserInputError
 from formula_tourney.sim.env import FormulaRacingEnv, FormulaRacingVectorEnv
-from formula_tourney.sim.track import Track
 from formula_tourney.training import envs as run_envs
 from formula_tourney.training import loop
-from formula_tourney.training import spec as run_spec
 from formula_tourney.training.collect import SingleCarCollector, VectorCollector, split_cars
 from formula_tourney.training.demos import behaviour_clone, collect_demonstrations
 from formula_tourney.training.spec import RunSpec, build_run_spec
-
-SMALL = {
-    "hidden": [32, 32], "batch_size": 32, "learning_starts": 40, "buffer_size": 2000,
-    "exploration_steps": 200,
-}  # fmt: skip
-
-
-def _ring(name: str) -> Track:
-    a = np.linspace(0.0, 2 * np.pi, 400, endpoint=False)
-    return Track.from_centreline(name, 80 * np.cos(a), 80 * np.sin(a), 6.0, 6.0)
-
-
-@pytest.fixture
-def ring_tracks(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(run_envs, "load_track", _ring)
-    monkeypatch.setattr(run_spec, "check_track_name", lambda name, base_dir=None: name)
 
 
 def _scripted(car: int, obs: np.ndarray) -> np.ndarray:
@@ -64,7 +47,7 @@ def test_n_car_collection_equals_n_single_car_collections() -> None:
     same observations, actions, rewards, ends, and the same n-step sums, discounts and windows
     (which therefore never mix cars or episodes), through a buffer wrap-around."""
     n_cars, lane, steps, scale = 3, 23, 70, 0.5
-    config = {"track": _ring("ring"), "max_steps": 9, "random_start": False}
+    config = {"track": ring_track("ring"), "max_steps": 9, "random_start": False}
     kw = dict(gamma=0.9, n_step=3, window=4, bootstrap_on_truncation=True, seed=0)
     shared = ReplayBuffer(n_cars * lane, 29, 3, lanes=n_cars, **kw)  # type: ignore[arg-type]
     vec = VectorCollector([("ring", FormulaRacingVectorEnv(n_cars, config))], [0], shared, 4, scale)
