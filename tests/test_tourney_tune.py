@@ -1,9 +1,13 @@
 """Optuna pre-selection: a study in a journal file that resumes, retries a trial left RUNNING by
-a dead process, and writes its best parameters into a tournament file."""
+a dead process, and writes its best parameters into a tournament file; objectives of the best
+lap or of CPU-seconds to a milestone."""
 
 from __future__ import annotations
 
+import json
+import math
 import tomllib
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -11,9 +15,10 @@ import pytest
 from formula_tourney.errors import UserInputError
 from formula_tourney.tourney.best_params import write_best_params
 from formula_tourney.tourney.spec import load_spec
-from formula_tourney.tourney.tune import run_tune
-from formula_tourney.tourney.tune_spec import load_tune_spec
+from formula_tourney.tourney.tune import objective_threshold, run_tune
+from formula_tourney.tourney.tune_spec import Objective, check_tune, load_tune_spec
 from formula_tourney.tourney.tune_study import suggest
+from formula_tourney.tourney.tune_worker import CpuMilestone
 
 TUNE = """\
 name = "tinytune"
@@ -81,6 +86,21 @@ def test_write_best_merges_into_the_variant(tmp_path: Path) -> None:
     with pytest.raises(UserInputError, match="variant WIN4 overrides"):
         write_best_params(target, "WIN4", {"batch_size": -1})
     assert tomllib.loads(target.read_text())["variants"]["WIN4"]["overrides"]["batch_size"] == 64
+
+    # parameters tuned around a preset take the preset along (tune's [train] preset)
+    write_best_params(target, "WIN4", {"actor_lr": 1e-4}, preset="fast")
+    write_best_params(target, "WIN4", {"actor_lr": 1e-4}, preset="fast-demos")
+    write_best_params(target, "WIN1", {"batch_size": 32}, preset="fast")
+    raw = tomllib.loads(target.read_text())
+    assert raw["variants"]["WIN4"]["preset"] == "fast-demos"
+    assert raw["variants"]["WIN4"]["overrides"]["batch_size"] == 64
+    assert raw["variants"]["WIN1"] == {"preset": "fast", "overrides": {"batch_size": 32}}
+    sub = tmp_path / "sub.toml"
+    sub.write_text(TOURNAMENT.replace('[variants.WIN4]\nfamily = "DDPG"\n',
+                                      "[variants.WIN4.overrides]\ngamma = 0.98\n"))
+    write_best_params(sub, "WIN4", {"actor_lr": 1e-4}, preset="fast")
+    assert tomllib.loads(sub.read_text())["variants"]["WIN4"] == {
+        "preset": "fast", "overrides": {"gamma": 0.98, "actor_lr": 1e-4}}
 
 
 def test_study_resumes_and_retries_a_killed_trial(tmp_path: Path) -> None:
@@ -163,3 +183,178 @@ def test_search_values_are_built_into_run_specs_before_the_study(tmp_path: Path)
                        r"batch_size for WIN4"):
         run_tune(path, "WIN4", trials=1, workers=1, results_dir=tmp_path / "res")
     assert not (tmp_path / "res").exists()
+
+
+# --- CPU-seconds to competence ([objective]) ------------------------------------------------
+def _scripted(cpu: list[float]) -> Callable[[], float]:
+    """A clock that reads 0 at the start of training, then the given CPU-seconds in turn."""
+    ticks = iter([0.0, *cpu])
+    return lambda: next(ticks)
+
+
+def test_cpu_objective_arithmetic_on_a_scripted_run() -> None:
+    """The value is the CPU-s of the first episode whose best_lap_s is below the threshold
+    (strictly); a miss scores budget x penalty_factor; the pruner's sequence never rises."""
+    beat = Objective(kind="cpu_s_to_beat_follower", budget_cpu_s=100.0, penalty_factor=3.0)
+    clock = CpuMilestone(beat, threshold_s=35.0, clock=_scripted([10.0, 20.0, 30.0, 40.0, 55.5]))
+    laps = [None, 41.2, 35.0, 35.0, 34.9]  # 35.0 ties the follower: not beaten
+    stops, projected = [], []
+    for episode, lap in enumerate(laps, start=1):
+        stops.append(clock.update({"episode": episode, "best_lap_s": lap, "env_steps": 100}))
+        projected.append(clock.projected())
+    assert stops == [False, False, False, False, True]
+    assert clock.value() == 55.5 and clock.hit == {"cpu_s": 55.5, "episode": 5, "lap_s": 34.9,
+                                                  "env_steps": 100}
+    assert projected == [300.0, 300.0, 300.0, 300.0, 55.5]  # non-increasing: median-prunable
+    assert clock.step() == 55
+    series = clock.series()
+    assert len(series) == 101 and series[54] == 300.0 and series[55] == series[100] == 55.5
+
+    # the first clean lap: any finite lap; a miss when the budget passes first
+    first = Objective(kind="cpu_s_to_first_clean_lap", budget_cpu_s=25.0)
+    clock = CpuMilestone(first, threshold_s=math.inf, clock=_scripted([12.0, 26.0]))
+    assert clock.update({"episode": 1, "best_lap_s": None}) is False
+    assert clock.update({"episode": 2, "best_lap_s": 80.0}) is True  # lapped, but past budget
+    assert clock.hit is None and clock.value() == 50.0 and clock.step() == 100
+    assert set(clock.series().values()) == {50.0}
+    clock = CpuMilestone(first, threshold_s=math.inf, clock=_scripted([3.25]))
+    assert clock.update({"episode": 1, "best_lap_s": 80.0}) and clock.value() == 3.25
+
+
+def test_median_pruner_cuts_a_trial_behind_on_cpu_seconds() -> None:
+    """Optuna's MedianPruner on the reported sequence: with complete trials reaching the
+    milestone at 20, 30 and 90 CPU-s, a trial without it is pruned once it has spent more CPU
+    than two of them needed, not before."""
+    import optuna
+
+    first = Objective(kind="cpu_s_to_first_clean_lap", budget_cpu_s=100.0)
+    study = optuna.create_study(pruner=optuna.pruners.MedianPruner(n_startup_trials=3))
+    for hit in (20.0, 30.0, 90.0):
+        trial = study.ask()
+        clock = CpuMilestone(first, math.inf, clock=_scripted([hit]))
+        clock.update({"episode": 1, "best_lap_s": 50.0})
+        for step, value in clock.series().items():
+            trial.report(value, step)
+        study.tell(trial, clock.value())
+    trial = study.ask()
+    clock = CpuMilestone(first, math.inf, clock=_scripted([25.0, 35.0]))
+    verdicts = []
+    for _ in range(2):
+        clock.update({"episode": 1, "best_lap_s": None})
+        trial.report(clock.projected(), clock.step())
+        verdicts.append(trial.should_prune())
+    assert verdicts == [False, True]
+
+
+def test_objective_keys_are_checked_with_line(tmp_path: Path) -> None:
+    path = tmp_path / "t.toml"
+    n = TUNE.count("\n") + 3  # the line of the first key under an [objective] added at the end
+    cases = {
+        'kind = "fastest"\n': rf"t.toml:{n}: objective.kind: 'fastest' is not allowed; allowed "
+        r"values: best_lap, cpu_s_to_first_clean_lap, cpu_s_to_beat_follower",
+        'kind = "cpu_s_to_first_clean_lap"\nbudget_cpu_s = -5\n':
+            rf"t.toml:{n + 1}: objective.budget_cpu_s: -5: .*greater than 0; allowed values: "
+            r"CPU-seconds > 0",
+        'kind = "cpu_s_to_first_clean_lap"\n': rf"t.toml:{n}: objective.kind: "
+        r"cpu_s_to_first_clean_lap needs budget_cpu_s",
+        'kind = "cpu_s_to_beat_follower"\nline = "recorded"\nbudget_cpu_s = 9\n':
+            rf"t.toml:{n + 1}: objective.line: 'recorded' is not allowed; allowed values: "
+            r"centre, mincurv",
+        "budget = 600\n": rf"t.toml:{n}: objective.budget: unknown key; allowed "
+        r"keys: kind, line, budget_cpu_s, penalty_factor",
+        "budget_cpu_s = 600\n": rf"t.toml:{n}: objective.budget_cpu_s: only the "
+        r"CPU-second kinds",
+        'kind = "cpu_s_to_first_clean_lap"\nline = "centre"\nbudget_cpu_s = 9\n':
+            rf"t.toml:{n + 1}: objective.line: only kind = cpu_s_to_beat_follower",
+    }
+    for block, pattern in cases.items():
+        path.write_text(_with_objective(block), encoding="utf-8")
+        with pytest.raises(UserInputError, match=pattern):
+            load_tune_spec(path)
+    path.write_text('objectiv = "best_lap"\n' + TUNE, encoding="utf-8")
+    with pytest.raises(UserInputError, match=r"t.toml:1: objectiv: unknown key; allowed keys: "
+                       r".*objective"):
+        load_tune_spec(path)
+    path.write_text('objective = "cpu_s_to_beat_follower"\n' + TUNE, encoding="utf-8")
+    with pytest.raises(UserInputError, match=r"t.toml:1: objective.kind: .*needs budget_cpu_s"):
+        load_tune_spec(path)
+    path.write_text(TUNE, encoding="utf-8")
+    assert load_tune_spec(path)[0].objective == Objective()  # best_lap, as before
+
+
+def _with_objective(block: str, tune: str = TUNE) -> str:
+    return f"{tune}\n[objective]\n{block}"
+
+
+def test_follower_lap_to_beat_is_driven_in_the_parent(tmp_path: Path) -> None:
+    from formula_tourney.bots.follower import drive
+    from formula_tourney.bots.reference import reference_offsets
+    from formula_tourney.sim.catalog import load_track
+
+    path = tmp_path / "t.toml"
+    path.write_text(_with_objective('kind = "cpu_s_to_beat_follower"\nline = "mincurv"\n'
+                                    "budget_cpu_s = 60\n"), encoding="utf-8")
+    spec, text = load_tune_spec(path)
+    base = check_tune(spec, text, path, "WIN1")
+    lap = objective_threshold(spec, base)
+    oval = load_track("oval")
+    assert lap == drive(oval, reference_offsets(oval, "mincurv"), laps=2)["best_lap_s"]
+    assert 20.0 < lap < 60.0
+    assert objective_threshold(load_tune_spec(tmp_path / "t.toml")[0].model_copy(
+        update={"objective": Objective(kind="cpu_s_to_first_clean_lap", budget_cpu_s=1.0)}),
+        base) == math.inf  # fmt: skip
+    assert objective_threshold(spec.model_copy(update={"objective": Objective()}), base) is None
+
+
+def test_cpu_objective_study_around_a_preset_records_its_value(tmp_path: Path) -> None:
+    """End to end: one trial of cpu_s_to_first_clean_lap under the fast preset, in a worker
+    process on the real clock: 30-step episodes never lap oval, so the trial trains until its
+    0.5 CPU-s pass, stops long before its 10000 episodes and scores the miss, 2 x 0.5."""
+    import optuna
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    path = tmp_path / "tune.toml"
+    tune = TUNE.replace("episodes = 2\n", 'episodes = 10000\npreset = "fast"\n'
+                        "variant_overrides = { buffer_size = 5000 }\n")
+    path.write_text(_with_objective('kind = "cpu_s_to_first_clean_lap"\nbudget_cpu_s = 0.5\n',
+                                    tune), encoding="utf-8")
+    results = tmp_path / "res"
+    result = run_tune(path, "WIN1", trials=1, workers=1, results_dir=results)
+    assert result["counts"]["COMPLETE"] == 1, result
+    assert result["objective"] == {"kind": "cpu_s_to_first_clean_lap", "line": "centre",
+                                   "budget_cpu_s": 0.5, "penalty_factor": 2.0,
+                                   "miss_score": 1.0, "threshold_s": None}
+    row = result["trials"][0]
+    assert row["value"] == 1.0 and row["cpu_s"] is None and row["best_lap_s"] is None
+    journal = results / "tinytune" / "optuna" / "WIN1.journal"
+    trial = optuna.load_study(study_name="tinytune-WIN1",
+                              storage=JournalStorage(JournalFileBackend(str(journal)))).trials[0]
+    assert trial.value == 1.0 and trial.user_attrs["cpu_s_used"] > 0.5
+    assert sorted(trial.intermediate_values) == list(range(101))
+    assert set(trial.intermediate_values.values()) == {1.0}
+    job = results / "tinytune" / "tune" / "WIN1" / "trial-0"
+    summary = json.loads((job / "summary.json").read_text())
+    assert summary["stopped_early"] and 1 <= summary["episodes"] < 10000
+    config = json.loads((job / "config.json").read_text())["run_spec"]
+    assert config["preset"] == "fast" and config["agent"]["exploration_steps"] == 40_000
+
+
+def test_resume_refuses_another_objective(tmp_path: Path) -> None:
+    """A study's values are of one objective: --resume with another one is refused."""
+    import optuna
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    journal = tmp_path / "res" / "tinytune" / "optuna" / "WIN4.journal"
+    journal.parent.mkdir(parents=True)
+    storage = JournalStorage(JournalFileBackend(str(journal)))
+    study = optuna.create_study(study_name="tinytune-WIN4", storage=storage)
+    study.set_user_attr("objective", Objective().model_dump())
+    path = tmp_path / "tune.toml"
+    path.write_text(_with_objective('kind = "cpu_s_to_first_clean_lap"\nbudget_cpu_s = 5\n'),
+                    encoding="utf-8")
+    with pytest.raises(UserInputError, match=r"--resume: study 'tinytune-WIN4' was run with "
+                       r"objective \{'kind': 'best_lap'"):
+        run_tune(path, "WIN4", trials=1, workers=1, resume=True, results_dir=tmp_path / "res")
+    assert study.get_trials() == []

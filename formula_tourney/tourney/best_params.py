@@ -25,12 +25,15 @@ def _toml_value(value: Any) -> str:
     raise UserInputError(f"cannot write {value!r} to TOML")
 
 
-def write_best_params(path: Path, variant: str, params: dict[str, Any]) -> None:
+def write_best_params(path: Path, variant: str, params: dict[str, Any],
+                      preset: str | None = None) -> None:  # fmt: skip
     """Merge ``params`` into ``[variants.<variant>] overrides`` of a tournament file.
 
     Edits the text (comments and layout elsewhere survive): an existing ``overrides`` line or
-    ``[variants.X.overrides]`` table is replaced, else the entry is added. The result is
-    validated as a tournament before it atomically replaces the file.
+    ``[variants.X.overrides]`` table is replaced, else the entry is added. ``preset`` (the tune
+    file's ``[train] preset``: the parameters were found on top of it and mean something else
+    without it) is written as the entry's ``preset`` too. The result is validated as a
+    tournament before it atomically replaces the file.
     """
     text = read_spec_text(path, "tournament")
     current = tomllib.loads(text).get("variants", {}).get(variant, {}).get("overrides", {})
@@ -61,7 +64,28 @@ def write_best_params(path: Path, variant: str, params: dict[str, Any]) -> None:
             lines.insert(start + 1, inline)
     else:
         lines += ["", header, inline]
+    if preset is not None:
+        _set_preset(lines, header, preset)
     new_text = "\n".join(lines).rstrip("\n") + "\n"
     # The merged file must plan: every job's run spec is built before the file is replaced.
     Planner(parse_spec(new_text, path), path, new_text, Path("results")).validate()
     atomic_write_text(path, new_text)
+
+
+def _set_preset(lines: list[str], header: str, preset: str) -> None:
+    """Set ``preset`` in the ``header`` table (after an existing ``[variants.X.overrides]``
+    table the ``[variants.X]`` header is added at the end: TOML allows the parent after)."""
+    entry = f"preset = {_toml_value(preset)}"
+    stripped = [ln.strip() for ln in lines]
+    if header not in stripped:
+        lines += ["", header, entry]
+        return
+    start = stripped.index(header)
+    end = start + 1
+    while end < len(lines) and not stripped[end].startswith("["):
+        end += 1
+    for i in range(start + 1, end):
+        if stripped[i].startswith("preset"):
+            lines[i] = entry
+            return
+    lines.insert(start + 1, entry)

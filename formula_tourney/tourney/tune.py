@@ -12,11 +12,16 @@ needs no server); ``--storage URL`` takes an RDB for many machines, where Optuna
 the parent does the same by itself: a trial left RUNNING by a dead worker (seen by its process
 sentinel, or at ``--resume`` after the whole run was killed) is failed and enqueued again with
 the same parameters, at most ``max_retry`` times.
+
+With ``[objective] kind = "cpu_s_to_beat_follower"`` the lap to beat (the follower bot's on the
+objective's line of the key track, for the run's car) is driven once here, before any trial, and
+handed to every worker; the study records it in its ``objective`` user attribute.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import multiprocessing as mp
 import os
 from collections.abc import Callable
@@ -45,6 +50,7 @@ from formula_tourney.tourney.tune_study import (
     worker_tag,
 )
 from formula_tourney.tourney.tune_worker import tune_worker
+from formula_tourney.training.spec import RunSpec
 
 Report = Callable[[str], None]
 """Receives one line of progress (the CLI prints it on stderr)."""
@@ -75,9 +81,10 @@ def run_tune(
         raise UserInputError(f"--trials must be >= 1, got {trials}")
     if workers is not None and workers < 1:
         raise UserInputError(f"--workers must be >= 1, got {workers}")
-    check_tune(spec, text, path, variant)
+    base = check_tune(spec, text, path, variant)
     if write_best is not None:
         load_spec(Path(write_best))  # a broken target file fails now, not after hours of tuning
+    threshold_s = objective_threshold(spec, base)  # once, before any trial
     root = Path(results_dir) / spec.name
     journal = root / "optuna" / f"{variant}.journal"
     study_name = f"{spec.name}-{variant}"
@@ -93,8 +100,10 @@ def run_tune(
         study = optuna.create_study(study_name=study_name, storage=store, direction="minimize",
                                     sampler=make_sampler(spec, spec.sampler.seed),
                                     pruner=make_pruner(spec), load_if_exists=resume)
+        objective = _objective_record(spec, study, threshold_s)
         study.set_user_attr("search", json.loads(json.dumps(
             {k: v.model_dump() for k, v in spec.search.items()})))
+        study.set_user_attr("objective", objective)
         retried = 0
         if storage is None:
             # Nothing else can hold this journal (we hold the folder lock): RUNNING is stale.
@@ -103,13 +112,58 @@ def run_tune(
                                           "process died (found at resume)")
         pool = _Workers(spec, variant, storage, journal, study_name, trials,
                         root / "tune" / variant, path.resolve().parent,
-                        start_trials=len(study.get_trials(deepcopy=False)))
+                        start_trials=len(study.get_trials(deepcopy=False)),
+                        threshold_s=threshold_s)
         retried += pool.run(study, workers or default_workers(), report)
         result = _summarise(study, variant, storage or str(journal), retried, spec)
     if write_best is not None and result["best"] is not None:
-        write_best_params(Path(write_best), variant, result["best"]["params"])
+        write_best_params(Path(write_best), variant, result["best"]["params"],
+                          preset=spec.train.preset)
         result["written_to"] = str(write_best)
     return result
+
+
+def objective_threshold(spec: TuneSpec, run: RunSpec) -> float | None:
+    """The lap a CPU-second objective's milestone must get under: ``math.inf`` for the first
+    clean lap; for cpu_s_to_beat_follower the follower bot's best clean lap of 2 on the
+    objective's line of the key track, driven here for the run's car. None for best_lap."""
+    kind = spec.objective.kind
+    if kind == "best_lap":
+        return None
+    if kind == "cpu_s_to_first_clean_lap":
+        return math.inf
+    # the bots import numba kernels and the line solvers: only when this objective needs them
+    from formula_tourney.bots.follower import drive
+    from formula_tourney.bots.reference import reference_offsets
+    from formula_tourney.sim.catalog import load_track
+
+    track = load_track(run.key_track)
+    car = run.env.car_params()
+    lap = float(drive(track, reference_offsets(track, spec.objective.line, car), laps=2,
+                      car=car)["best_lap_s"])  # fmt: skip
+    if not math.isfinite(lap):
+        raise UserInputError(f"objective {kind}: the follower drove no clean lap on the "
+                             f"{spec.objective.line} line of {run.key_track}: nothing to beat")
+    return lap
+
+
+def _objective_record(spec: TuneSpec, study: Any, threshold_s: float | None) -> dict[str, Any]:
+    """The study's ``objective`` user attribute; a resumed study must keep its objective (the
+    values of two objectives cannot be compared; a study from before objectives were recorded
+    ran best_lap)."""
+    record = spec.objective.model_dump()
+    if spec.objective.cpu:
+        record["miss_score"] = spec.objective.miss_score()
+    record["threshold_s"] = threshold_s if math.isfinite(threshold_s or 0.0) else None
+    stored = study.user_attrs.get("objective")
+    if stored is None and study.get_trials(deepcopy=False):
+        stored = type(spec.objective)().model_dump()
+    if stored is not None:
+        was = {k: stored.get(k) for k in spec.objective.model_dump()}
+        if was != spec.objective.model_dump():
+            raise UserInputError(f"--resume: study {study.study_name!r} was run with objective "
+                                 f"{was}; the file now gives {spec.objective.model_dump()}")
+    return record
 
 
 class _Workers:
@@ -118,13 +172,13 @@ class _Workers:
 
     def __init__(self, spec: TuneSpec, variant: str, storage: str | None, journal: Path,
                  study_name: str, trials: int, trial_root: Path, base_dir: Path,
-                 start_trials: int) -> None:
+                 start_trials: int, threshold_s: float | None = None) -> None:
         self.spec = spec
         self.trials = trials
         self.start_trials = start_trials
         self.serial = 0
         self.args = (spec.model_dump_json(), variant, storage, str(journal), study_name, trials,
-                     str(trial_root), str(base_dir))
+                     str(trial_root), str(base_dir), threshold_s)
         self.study_name = study_name
         self._ctx = mp.get_context("spawn")
 
@@ -173,7 +227,7 @@ def _summarise(study: Any, variant: str, where: str, retried: int,
     trials = study.get_trials(deepcopy=False)
     rows = [{"number": t.number, "state": t.state.name, "value": t.value,
              "params": decode_params(t.params, spec.search),
-             "best_lap_s": t.user_attrs.get("best_lap_s"),
+             "best_lap_s": t.user_attrs.get("best_lap_s"), "cpu_s": t.user_attrs.get("cpu_s"),
              "retry_of": t.system_attrs.get("failed_trial")} for t in trials]
     complete = [t for t in trials if t.state == TrialState.COMPLETE]
     best = None
@@ -181,7 +235,9 @@ def _summarise(study: Any, variant: str, where: str, retried: int,
         top = min(complete, key=lambda t: t.value)
         best = {"number": top.number, "value": top.value,
                 "params": decode_params(top.params, spec.search),
-                "best_lap_s": top.user_attrs.get("best_lap_s")}
+                "best_lap_s": top.user_attrs.get("best_lap_s"),
+                "cpu_s": top.user_attrs.get("cpu_s")}
     counts = {s.name: sum(t.state == s for t in trials) for s in TrialState}
-    return {"study": study.study_name, "variant": variant, "storage": where, "trials": rows,
-            "counts": counts, "best": best, "retried": retried}
+    return {"study": study.study_name, "variant": variant, "storage": where,
+            "objective": study.user_attrs.get("objective"), "trials": rows, "counts": counts,
+            "best": best, "retried": retried}

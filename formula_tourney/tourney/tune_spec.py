@@ -1,10 +1,12 @@
-"""The tune file: ``[train]`` settings, ``[search]`` space, sampler, pruner, retries.
+"""The tune file: ``[train]`` settings, ``[search]`` space, objective, sampler, pruner, retries.
 
 The search space's keys are the variant's hyperparameters (``agents.variants.AgentConfig``);
 ``[train]`` takes the same job settings as a tournament part. A trial's run specification is
 built by ``training.spec.build_run_spec`` through :func:`trial_spec`, the same path the
 tournament plan takes; :func:`check_tune` builds the specs of the search space's corners in the
-parent, so an impossible value fails before a study is created.
+parent, so an impossible value fails before a study is created. ``[objective]`` picks what a
+trial scores: its best clean test lap (the default), or the CPU-seconds it takes to a milestone
+(``tourney.tune_worker.CpuMilestone``).
 """
 
 from __future__ import annotations
@@ -95,9 +97,56 @@ class Sampler(BaseModel):
 class Pruner(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
     kind: Literal["median", "none"] = Field("median", description="median: stop a trial whose "
-                                            "test lap is worse than the median at that episode.")
+                                            "reported value is worse than the median of the "
+                                            "complete trials at that step.")
     n_startup_trials: int = Field(3, ge=0, description="Trials never pruned.")
-    n_warmup_steps: int = Field(0, ge=0, description="Episodes before pruning starts.")
+    n_warmup_steps: int = Field(0, ge=0, description="Steps before pruning starts: episodes "
+                                "for best_lap, percent of budget_cpu_s for the cpu_s_* kinds.")
+
+
+OBJECTIVE_KINDS: tuple[str, ...] = ("best_lap", "cpu_s_to_first_clean_lap",
+                                    "cpu_s_to_beat_follower")  # fmt: skip
+CPU_KINDS: tuple[str, ...] = OBJECTIVE_KINDS[1:]
+_OBJECTIVE_VALUES = {
+    "kind": ", ".join(OBJECTIVE_KINDS),
+    "line": "centre, mincurv",
+    "budget_cpu_s": "CPU-seconds > 0",
+    "penalty_factor": "a number > 1",
+}
+
+
+class Objective(BaseModel):
+    """What a trial scores (lower is better)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    kind: Literal["best_lap", "cpu_s_to_first_clean_lap", "cpu_s_to_beat_follower"] = Field(
+        "best_lap", description="best_lap: the best clean test lap on the key track (s); "
+        "cpu_s_to_first_clean_lap: CPU-seconds of training until a test's first clean lap; "
+        "cpu_s_to_beat_follower: CPU-seconds until a clean test lap faster than the follower "
+        "bot on `line`."
+    )
+    line: Literal["centre", "mincurv"] = Field(
+        "centre", description="cpu_s_to_beat_follower: the line of the key track the follower "
+        "drives (its best of 2 laps, for the run's car, is the lap to beat)."
+    )
+    budget_cpu_s: float | None = Field(
+        None, gt=0, description="cpu_s_* kinds (required): a trial stops at its milestone or "
+        "when its process CPU time since the start of training passes this."
+    )
+    penalty_factor: float = Field(
+        2.0, gt=1, description="cpu_s_* kinds: a trial that misses its milestone within the "
+        "budget scores budget_cpu_s x penalty_factor."
+    )
+
+    @property
+    def cpu(self) -> bool:
+        """Whether this objective counts CPU-seconds (else it is the best lap)."""
+        return self.kind in CPU_KINDS
+
+    def miss_score(self) -> float:
+        """The value of a trial that misses its milestone (cpu_s_* kinds)."""
+        return float(self.budget_cpu_s or 0.0) * self.penalty_factor
 
 
 class TuneSpec(BaseModel):
@@ -113,8 +162,10 @@ class TuneSpec(BaseModel):
     pruner: Pruner = Field(default_factory=Pruner, description="Pruner settings.")
     max_retry: int = Field(2, ge=0, description="Times a trial killed with its process is "
                            "run again with the same parameters.")
-    no_finish_penalty_s: float = Field(1000.0, gt=0, description="Objective of a trial "
-                                       "without a clean lap.")
+    no_finish_penalty_s: float = Field(1000.0, gt=0, description="best_lap objective of a "
+                                       "trial without a clean lap.")
+    objective: Objective = Field(default_factory=Objective, description="What a trial scores: "
+                                 "an [objective] table, or just its kind.")
 
 
 def load_tune_spec(path: str | Path) -> tuple[TuneSpec, str]:
@@ -125,6 +176,12 @@ def load_tune_spec(path: str | Path) -> tuple[TuneSpec, str]:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise UserInputError(f"{path}: not valid TOML: {err}") from None
+    for key in raw:
+        if key not in TuneSpec.model_fields:
+            raise error_at(path, text, (key,), "unknown key; allowed keys: "
+                           f"{', '.join(TuneSpec.model_fields)}")
+    if "objective" in raw:
+        raw["objective"] = _objective(raw["objective"], path, text).model_dump(exclude_unset=True)
     try:
         spec = TuneSpec.model_validate(raw)
     except ValidationError as err:
@@ -139,6 +196,40 @@ def load_tune_spec(path: str | Path) -> tuple[TuneSpec, str]:
             raise error_at(path, text, ("search", key),
                            f"unknown hyperparameter; allowed values: {', '.join(allowed)}")
     return spec, text
+
+
+def _objective(value: Any, path: Path, text: str) -> Objective:
+    """The ``objective`` table (or a bare kind) checked key by key: every problem names its line
+    and the allowed values, and a key that the kind does not use is an error."""
+    if isinstance(value, str):
+        value = {"kind": value}
+    if not isinstance(value, dict):
+        raise error_at(path, text, ("objective",), "give a table (kind = ..., budget_cpu_s = ...) "
+                       f"or a kind; allowed kinds: {_OBJECTIVE_VALUES['kind']}")
+    for key in value:
+        if key not in Objective.model_fields:
+            raise error_at(path, text, ("objective", key), "unknown key; allowed keys: "
+                           f"{', '.join(Objective.model_fields)}")
+    try:
+        objective = Objective.model_validate(value)
+    except ValidationError as err:
+        item = err.errors()[0]
+        key = str(item["loc"][0])
+        problem = " is not allowed" if item["type"] == "literal_error" else f": {item['msg']}"
+        raise error_at(path, text, ("objective", key), f"{value.get(key)!r}{problem}; "
+                       f"allowed values: {_OBJECTIVE_VALUES[key]}") from None
+    kinds = ", ".join(CPU_KINDS)
+    if objective.cpu and objective.budget_cpu_s is None:
+        raise error_at(path, text, ("objective", "kind"), f"{objective.kind} needs budget_cpu_s "
+                       f"(allowed values: {_OBJECTIVE_VALUES['budget_cpu_s']})")
+    for key in ("budget_cpu_s", "penalty_factor"):
+        if not objective.cpu and key in value:
+            raise error_at(path, text, ("objective", key), f"only the CPU-second kinds take "
+                           f"{key}; allowed with kind = {kinds}")
+    if "line" in value and objective.kind != "cpu_s_to_beat_follower":
+        raise error_at(path, text, ("objective", "line"), "only kind = cpu_s_to_beat_follower "
+                       "takes a line")
+    return objective
 
 
 def trial_spec(
