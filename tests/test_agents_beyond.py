@@ -389,7 +389,7 @@ def test_deepcopy_is_an_independent_agent_that_keeps_learning(name: str) -> None
 # --- configuration ------------------------------------------------------------------------------
 NEW_FIELDS = {
     "algorithm": "ddpg", "policy_noise": 0.2, "noise_clip": 0.5, "policy_delay": 2,
-    "alpha_init": 1.0, "alpha_lr": 3e-4, "target_entropy": None,
+    "alpha_init": 1.0, "alpha_lr": 3e-4, "target_entropy": None, "brake_explore_hold_steps": 1,
 }  # fmt: skip
 # AgentConfig().model_dump(mode="json") and each paper variant's changes from it, before
 # TD3 and SAC existed (issue 11, item 3)

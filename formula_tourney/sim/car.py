@@ -17,6 +17,7 @@ import numpy as np
 from formula_tourney.errors import UserInputError
 from formula_tourney.sim import kernels as K
 from formula_tourney.sim.car_params import CarParams
+from formula_tourney.sim.sensors import surface_rows
 
 
 @dataclass(frozen=True)
@@ -124,6 +125,8 @@ class CarBatch:
         self.physics_hz = float(physics_hz)
         self.state = np.zeros((n, K.N_STATE))
         self.on_grass = np.zeros(n, dtype=np.uint8)
+        self.surface = np.zeros((n, K.N_ELEV))
+        self.on_surface = np.zeros(n, dtype=np.uint8)
         for c in range(n):
             set_start(self.state[c], self.car, 0.0, 0.0, 0.0, 0.0)
 
@@ -135,12 +138,31 @@ class CarBatch:
               speed_mps: float = 0.0) -> None:
         set_start(self.state[c], self.car, x_m, y_m, heading_rad, speed_mps)
 
+    def set_surface(self, c: int, slope_rad: float = 0.0, banking_rad: float = 0.0,
+                    vertical_curvature_1pm: float = 0.0, heading_rad: float = 0.0) -> None:
+        """Put car ``c`` on a uniform surface: grade (uphill > 0 along ``heading_rad``),
+        banking (> 0 raises the left side) and vertical curvature (> 0 a crest)."""
+        self.surface[c] = surface_rows(heading_rad, slope_rad, banking_rad,
+                                       vertical_curvature_1pm)[0]
+        self.on_surface[c] = 1
+
+    def normal_load_n(self, c: int = 0) -> float:
+        """Total tyre normal load of car ``c`` now (N), as the next substep computes it."""
+        st = self.state[c]
+        v2 = float(st[K.ST_VX] ** 2 + st[K.ST_VY] ** 2)
+        if not self.on_surface[c]:
+            return float(self.arrays.params[K.P_MG] + self.arrays.params[K.P_CL] * v2)
+        e = self.surface[c]
+        return float(K.normal_load(self.arrays.params, v2, float(st[K.ST_VX]),
+                                   float(st[K.ST_R]), e[K.E_GN], e[K.E_KV], e[K.E_SB]))
+
     def step(self, actions: np.ndarray, duration_s: float) -> None:
         """Hold ``actions`` (N x 3: steer, throttle, brake) for ``duration_s``."""
         a = np.ascontiguousarray(np.broadcast_to(np.asarray(actions, float), (self.n, 3)))
         n_sub = max(int(round(duration_s * self.physics_hz)), 1)
         K.integrate_free(self.state, a, self.arrays.params, self.arrays.torque,
-                         self.arrays.gears, self.on_grass, duration_s / n_sub, n_sub)
+                         self.arrays.gears, self.on_grass, duration_s / n_sub, n_sub,
+                         self.surface, self.on_surface)
 
     @property
     def speed_mps(self) -> np.ndarray:

@@ -26,7 +26,12 @@ from formula_tourney.sim.catalog import load_track
 from formula_tourney.sim.config import EnvConfig, ResetOptions, default_config
 from formula_tourney.sim.reference import ReferenceLine
 from formula_tourney.sim.render import TrackRenderer
-from formula_tourney.sim.sensors import observation_bounds, observation_names, track_geometry
+from formula_tourney.sim.sensors import (
+    observation_bounds,
+    observation_names,
+    surface_block,
+    track_geometry,
+)
 
 TERMINATIONS = {K.TERM_OFF_TRACK: "off_track", K.TERM_BACKWARDS: "backwards", K.TERM_SLOW: "slow"}
 DEFAULT_START_BEFORE_LINE_M = 50.0
@@ -101,6 +106,9 @@ class _Batch:
         c[K.C_LAC] = 1.0 if self.lac else 0.0
         c[K.C_LENGTH] = self.track.length_m
         self.geom = track_geometry(self.track, self.reference)
+        # Heights and banking: read by the kernels only on a track that has them.
+        c[K.C_ELEV] = 1.0 if self.track.has_surface else 0.0
+        self.elev = surface_block(self.track)
         self.names = observation_names(self.lac, self.lac_d)
         self.obs_low, self.obs_high = observation_bounds(self.lac, len(self.lac_d))
         n_obs = len(self.names)
@@ -219,11 +227,13 @@ class _Batch:
         if self.threads > 1:
             numba.set_num_threads(self.threads)
             K.step_cars_parallel(self.state, self.actions, self.integrate, self.params,
-                                 self.torque, self.gears, self.geom, self.cfg, self.lac_d,
+                                 self.torque, self.gears, self.geom, self.elev, self.cfg,
+                                 self.lac_d,
                                  self.obs, self.out)
         else:
             K.step_cars(self.state, self.actions, self.integrate, self.params, self.torque,
-                        self.gears, self.geom, self.cfg, self.lac_d, self.obs, self.out)
+                        self.gears, self.geom, self.elev, self.cfg, self.lac_d, self.obs,
+                        self.out)
 
     def record_lap(self, c: int, lap_time_s: float) -> None:
         dmg = float(self.state[c, K.ST_DAMAGE])

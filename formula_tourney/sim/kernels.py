@@ -24,6 +24,8 @@ Data layout (all float64, row per car):
   (s, lateral, hint index), progress, lap clock; columns named by the ``ST_*`` constants.
 - ``params[P_*]``: the car (:func:`pack_params` in ``car.py`` fills it from ``CarParams``).
 - ``geom[i, G_*]``: per track sample: centreline, widths, edges, reference line.
+- ``elev[i, E_*]``: per track sample: height, gravity on the sloped and banked surface, vertical
+  curvature (read only when ``cfg[C_ELEV]`` is set).
 - ``cfg[C_*]``: control period, substeps, grass width, termination switches, reward weights.
 - ``out[c, O_*]``: reward, termination code, truncation, lap time of a lap completed this step.
 """
@@ -138,6 +140,21 @@ G_BHR = 19
 N_GEOM = 20
 RAY_BLOCK = 8
 
+# --- surface (elevation and banking) columns, per track sample: ``elev[i, E_*]`` ---------------
+# Read only when ``cfg[C_ELEV]`` is set (a track with any height or banking): a flat track never
+# enters the code that reads them, so its trajectories are bit-identical to the flat simulator.
+E_Z = 0  # centreline height, m
+E_GX = 1  # in-plane component of gravity in world x and y, m/s^2 (-g sin(grade) along the
+E_GY = 2  # track, -g cos(grade) sin(bank) across it, left > 0)
+E_GN = 3  # normal component of gravity, g cos(grade) cos(bank), m/s^2
+E_KV = 4  # vertical curvature, 1/m (> 0 a crest)
+E_SB = 5  # sin(bank): bank > 0 raises the left edge (TORCS' sign)
+E_ICB = 6  # 1 / cos(bank)
+E_SG = 7  # sin(grade)
+E_CH = 8  # cos and sin of the centreline heading
+E_SH = 9
+N_ELEV = 10
+
 # --- configuration -----------------------------------------------------------------------------
 C_DT = 0  # control period, s
 C_NSUB = 1  # physics substeps per control period
@@ -152,7 +169,8 @@ C_DMG_W = 9
 C_SLOW_PEN = 10
 C_LAC = 11
 C_LENGTH = 12  # track length, m
-N_CFG = 13
+C_ELEV = 13  # 1 when the track has heights or banking (the ``elev`` block is read)
+N_CFG = 14
 
 # --- per-step outputs --------------------------------------------------------------------------
 O_REWARD = 0
@@ -506,9 +524,32 @@ def _small_rotation(d: float):
 
 
 @njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
+def surface_normal_load(p: np.ndarray, v2: float, vx: float, r: float, gn: float, kv: float,
+                        sin_bank: float) -> float:
+    """Total tyre normal load (N) on a sloped, banked, curved surface.
+
+    ``m (g cos(grade) cos(bank) - v^2 kv - a_lat sin(bank)) + downforce``: a crest
+    (``kv > 0``) unloads the tyres and a compression loads them; on a banked turn the part of
+    the path's horizontal acceleration ``a_lat = vx r`` (left > 0) that points into the surface
+    adds load (a right turn on a bank that raises the left edge: ``a_lat < 0``). Never below 0
+    (the car flies off a sharp crest).
+    """
+    fz = p[P_MASS] * (gn - v2 * kv - vx * r * sin_bank) + p[P_CL] * v2
+    return fz if fz > 0.0 else 0.0
+
+
+@njit(cache=True, fastmath=_FAST, _nrt=False)
+def normal_load(p: np.ndarray, v2: float, vx: float, r: float, gn: float, kv: float,
+                sin_bank: float) -> float:
+    """:func:`surface_normal_load`, callable from Python (tests)."""
+    return surface_normal_load(p, v2, vx, r, gn, kv, sin_bank)
+
+
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
 def physics_substep(st: np.ndarray, steer: float, cd: float, sd: float, throttle: float,
                     brake: float, p: np.ndarray, torque: np.ndarray, gears: np.ndarray,
-                    on_grass: bool, dt: float, cp: float, sp: float):
+                    on_grass: bool, dt: float, cp: float, sp: float, elev: np.ndarray,
+                    ie: int, surface: bool):
     """Advance one car (``st`` = its state row) by ``dt``: dynamic single-track model.
 
     Tyres: Fiala lateral force per wheel on its own load (static + aero + load transfer from the
@@ -526,6 +567,11 @@ def physics_substep(st: np.ndarray, steer: float, cd: float, sd: float, throttle
     ~4x a multiply and LLVM cannot hoist loads past the stores to ``st``), one division in the
     Fiala curve, and the yaw's cos/sin rotated by a Taylor series of ``r dt`` instead of two
     libm calls per substep (~25 ns per sin+cos pair measured here).
+
+    With ``surface`` set, the car is on the slope and banking of row ``ie`` of ``elev``
+    (``E_*``; :func:`surface_normal_load` gives the normal load): gravity's in-plane component
+    joins the accelerations, and the lateral one is the horizontal acceleration of the car's
+    path (the in-plane force divided by cos(bank)). Without it, nothing of this is computed.
     """
     m = p[P_MASS]
     lf = p[P_LF]
@@ -541,6 +587,9 @@ def physics_substep(st: np.ndarray, steer: float, cd: float, sd: float, throttle
 
     # Normal loads: weight and downforce split by CG position, then load transfer.
     fz_total = p[P_MG] + p[P_CL] * v2
+    if surface:
+        fz_total = surface_normal_load(p, v2, vx, r, elev[ie, E_GN], elev[ie, E_KV],
+                                       elev[ie, E_SB])
     fz_front = fz_total * p[P_LR_WB] - m * st[ST_AX] * p[P_H_WB]
     fz_rear = fz_total - fz_front
     lat_tr = m * st[ST_AY] * p[P_H_TW]  # left accel (ay > 0) loads the right wheels
@@ -650,11 +699,19 @@ def physics_substep(st: np.ndarray, steer: float, cd: float, sd: float, throttle
 
     ax = fx_body * p[P_INV_M]
     ay = fy_body * p[P_INV_M]
-    st[ST_AX] = ax
+    st[ST_AX] = ax  # specific forces of tyres and air: what transfers load
     st[ST_AY] = ay
     vx_old = vx
-    vx += (ax + r * vy) * dt
-    vy += (ay - r * vx_old) * dt
+    if surface:
+        gx = elev[ie, E_GX]
+        gy = elev[ie, E_GY]
+        a_x = ax + gx * cp + gy * sp
+        a_y = (ay - gx * sp + gy * cp) * elev[ie, E_ICB]
+        vx += (a_x + r * vy) * dt
+        vy += (a_y - r * vx_old) * dt
+    else:
+        vx += (ax + r * vy) * dt
+        vy += (ay - r * vx_old) * dt
     r += mz * p[P_INV_IZ] * dt
     st[ST_VX] = vx
     st[ST_VY] = vy
@@ -784,8 +841,8 @@ def _index_ahead(geom: np.ndarray, i: int, s_target: float, length: float) -> in
 
 
 @njit(cache=True, fastmath=_FAST, _nrt=False)
-def observe(st: np.ndarray, geom: np.ndarray, cfg: np.ndarray, lac_d: np.ndarray,
-            obs: np.ndarray) -> float:
+def observe(st: np.ndarray, geom: np.ndarray, elev: np.ndarray, cfg: np.ndarray,
+            lac_d: np.ndarray, obs: np.ndarray) -> float:
     """Write one car's telemetry into ``obs``; return its angle to the reference line (rad)."""
     length = cfg[C_LENGTH]
     i = int(st[ST_IDX])
@@ -815,6 +872,18 @@ def observe(st: np.ndarray, geom: np.ndarray, cfg: np.ndarray, lac_d: np.ndarray
     obs[OBS_VX] = st[ST_VX] / SPEED_SCALE_MPS
     obs[OBS_VY] = st[ST_VY] / SPEED_SCALE_MPS
     obs[OBS_VZ] = 0.0
+    if cfg[C_ELEV] > 0.5:
+        # Vertical speed of a car on the surface: the along-track part of its velocity climbs
+        # at sin(grade), the across-track part at sin(bank).
+        cpsi = math.cos(st[ST_PSI])
+        spsi = math.sin(st[ST_PSI])
+        vwx = st[ST_VX] * cpsi - st[ST_VY] * spsi
+        vwy = st[ST_VX] * spsi + st[ST_VY] * cpsi
+        ch = elev[i, E_CH]
+        sh = elev[i, E_SH]
+        v_t = vwx * ch + vwy * sh
+        v_l = -vwx * sh + vwy * ch
+        obs[OBS_VZ] = (v_t * elev[i, E_SG] + v_l * elev[i, E_SB]) / SPEED_SCALE_MPS
     for k in range(4):
         obs[OBS_WHEEL + k] = st[ST_W_FL + k] / WHEEL_SCALE_RADPS
     obs[OBS_RPM] = st[ST_RPM] / RPM_SCALE
@@ -834,33 +903,16 @@ def _locate(st: np.ndarray, geom: np.ndarray, length: float) -> None:
     st[ST_OFF] = 1.0 if (lat > geom[i, G_WL] or lat < -geom[i, G_WR]) else 0.0
 
 
-@njit(cache=True, fastmath=_FAST, _nrt=False)
-def control_step(st: np.ndarray, act: np.ndarray, p: np.ndarray, torque: np.ndarray,
-                 gears: np.ndarray, geom: np.ndarray, cfg: np.ndarray, out: np.ndarray) -> None:
-    """Integrate one car over one control period; time laps at the start line.
-
-    A lap completes when ``s`` wraps forward past 0; its time is interpolated inside the substep
-    from the fraction of the substep's arc length before the line. Backward crossings are owed
-    back first, so driving to and fro over the line never completes a lap.
-    """
-    length = cfg[C_LENGTH]
-    n_sub = int(cfg[C_NSUB])
-    dt = cfg[C_DT] / n_sub
-    steer = _clip(act[0], -1.0, 1.0)
-    throttle = _clip(act[1], 0.0, 1.0)
-    brake = _clip(act[2], 0.0, 1.0)
-    if math.isnan(steer) or math.isnan(throttle) or math.isnan(brake):
-        steer, throttle, brake = 0.0, 0.0, 0.0
-    dmg0 = st[ST_DAMAGE]
-    out[O_LAP_TIME] = np.nan
-    cd = math.cos(steer * p[P_STEER])
-    sd = math.sin(steer * p[P_STEER])
-    cp = math.cos(st[ST_PSI])
-    sp = math.sin(st[ST_PSI])
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
+def _substeps(st: np.ndarray, steer: float, cd: float, sd: float, throttle: float, brake: float,
+              p: np.ndarray, torque: np.ndarray, gears: np.ndarray, geom: np.ndarray,
+              elev: np.ndarray, cfg: np.ndarray, out: np.ndarray, length: float, n_sub: int,
+              dt: float, cp: float, sp: float, surface: bool) -> None:
+    """The physics substeps of :func:`control_step`, with projection, walls and lap timing."""
     for _ in range(n_sub):
         s_old = st[ST_S]
         cp, sp = physics_substep(st, steer, cd, sd, throttle, brake, p, torque, gears,
-                                 st[ST_OFF] > 0.5, dt, cp, sp)
+                                 st[ST_OFF] > 0.5, dt, cp, sp, elev, int(st[ST_IDX]), surface)
         _locate(st, geom, length)
         st[ST_DAMAGE] += wall_contact(st, geom, p, cfg[C_GRASS_W])
         s_new = st[ST_S]
@@ -881,6 +933,41 @@ def control_step(st: np.ndarray, act: np.ndarray, p: np.ndarray, torque: np.ndar
             st[ST_LAP_DEBT] += 1.0
         st[ST_DIST] += ds
         st[ST_TIME] = t0 + dt
+
+
+@njit(cache=True, fastmath=_FAST, _nrt=False)
+def control_step(st: np.ndarray, act: np.ndarray, p: np.ndarray, torque: np.ndarray,
+                 gears: np.ndarray, geom: np.ndarray, elev: np.ndarray, cfg: np.ndarray,
+                 out: np.ndarray) -> None:
+    """Integrate one car over one control period; time laps at the start line.
+
+    A lap completes when ``s`` wraps forward past 0; its time is interpolated inside the substep
+    from the fraction of the substep's arc length before the line. Backward crossings are owed
+    back first, so driving to and fro over the line never completes a lap.
+    """
+    length = cfg[C_LENGTH]
+    n_sub = int(cfg[C_NSUB])
+    dt = cfg[C_DT] / n_sub
+    steer = _clip(act[0], -1.0, 1.0)
+    throttle = _clip(act[1], 0.0, 1.0)
+    brake = _clip(act[2], 0.0, 1.0)
+    if math.isnan(steer) or math.isnan(throttle) or math.isnan(brake):
+        steer, throttle, brake = 0.0, 0.0, 0.0
+    dmg0 = st[ST_DAMAGE]
+    out[O_LAP_TIME] = np.nan
+    cd = math.cos(steer * p[P_STEER])
+    sd = math.sin(steer * p[P_STEER])
+    cp = math.cos(st[ST_PSI])
+    sp = math.sin(st[ST_PSI])
+    # Two copies of the substep loop, the surface switch a compile-time constant in each: the
+    # level copy compiles without any of the surface code or a per-substep test, so flat
+    # tracks run the flat simulator's arithmetic (bit-identical trajectories).
+    if cfg[C_ELEV] > 0.5:
+        _substeps(st, steer, cd, sd, throttle, brake, p, torque, gears, geom, elev, cfg, out,
+                  length, n_sub, dt, cp, sp, True)
+    else:
+        _substeps(st, steer, cd, sd, throttle, brake, p, torque, gears, geom, elev, cfg, out,
+                  length, n_sub, dt, cp, sp, False)
     st[ST_STEPS] += 1.0
     out[O_DMG_INC] = st[ST_DAMAGE] - dmg0
 
@@ -888,14 +975,15 @@ def control_step(st: np.ndarray, act: np.ndarray, p: np.ndarray, torque: np.ndar
 @njit(cache=True, fastmath=_FAST, _nrt=False)
 def _step_one(c: int, state: np.ndarray, actions: np.ndarray, integrate: np.ndarray,
               p: np.ndarray, torque: np.ndarray, gears: np.ndarray, geom: np.ndarray,
-              cfg: np.ndarray, lac_d: np.ndarray, obs: np.ndarray, out: np.ndarray) -> None:
+              elev: np.ndarray, cfg: np.ndarray, lac_d: np.ndarray, obs: np.ndarray,
+              out: np.ndarray) -> None:
     """One car's env step: physics, telemetry, reward and end flags (see :func:`step_cars`)."""
     length = cfg[C_LENGTH]
     st = state[c]
     o = out[c]
     if integrate[c] == 0:
         _locate(st, geom, length)
-        observe(st, geom, cfg, lac_d, obs[c])
+        observe(st, geom, elev, cfg, lac_d, obs[c])
         o[O_REWARD] = 0.0
         o[O_TERM] = TERM_NONE
         o[O_TRUNC] = 0.0
@@ -903,8 +991,8 @@ def _step_one(c: int, state: np.ndarray, actions: np.ndarray, integrate: np.ndar
         o[O_DMG_INC] = 0.0
         return
     dist0 = st[ST_DIST]
-    control_step(st, actions[c], p, torque, gears, geom, cfg, o)
-    angle = observe(st, geom, cfg, lac_d, obs[c])
+    control_step(st, actions[c], p, torque, gears, geom, elev, cfg, o)
+    angle = observe(st, geom, elev, cfg, lac_d, obs[c])
     vx = st[ST_VX]
     track_pos = obs[c, OBS_TRACKPOS]
     reward = vx * (math.cos(angle) - abs(math.sin(angle)) - abs(track_pos))
@@ -934,37 +1022,42 @@ def _step_one(c: int, state: np.ndarray, actions: np.ndarray, integrate: np.ndar
 
 @njit(cache=True, fastmath=_FAST, _nrt=False)
 def step_cars(state: np.ndarray, actions: np.ndarray, integrate: np.ndarray, p: np.ndarray,
-              torque: np.ndarray, gears: np.ndarray, geom: np.ndarray, cfg: np.ndarray,
-              lac_d: np.ndarray, obs: np.ndarray, out: np.ndarray) -> None:
+              torque: np.ndarray, gears: np.ndarray, geom: np.ndarray, elev: np.ndarray,
+              cfg: np.ndarray, lac_d: np.ndarray, obs: np.ndarray, out: np.ndarray) -> None:
     """The whole env step for N cars, on the calling thread.
 
     Cars with ``integrate[c] == 0`` were just reset: they are only located (global scan when
     their hint is < 0) and observed, with reward 0 and no end flags.
     """
     for c in range(state.shape[0]):
-        _step_one(c, state, actions, integrate, p, torque, gears, geom, cfg, lac_d, obs, out)
+        _step_one(c, state, actions, integrate, p, torque, gears, geom, elev, cfg, lac_d, obs,
+                  out)
 
 
 @njit(cache=True, fastmath=_FAST, _nrt=False, parallel=True)
 def step_cars_parallel(state: np.ndarray, actions: np.ndarray, integrate: np.ndarray,
                        p: np.ndarray, torque: np.ndarray, gears: np.ndarray, geom: np.ndarray,
-                       cfg: np.ndarray, lac_d: np.ndarray, obs: np.ndarray,
+                       elev: np.ndarray, cfg: np.ndarray, lac_d: np.ndarray, obs: np.ndarray,
                        out: np.ndarray) -> None:
     """:func:`step_cars` with cars spread over numba's threads (cars are independent).
 
     For a vector env that owns the machine; training workers keep one thread each (DESIGN.md).
     """
     for c in prange(state.shape[0]):
-        _step_one(c, state, actions, integrate, p, torque, gears, geom, cfg, lac_d, obs, out)
+        _step_one(c, state, actions, integrate, p, torque, gears, geom, elev, cfg, lac_d, obs,
+                  out)
 
 
 @njit(cache=True, fastmath=_FAST, _nrt=False)
 def integrate_free(state: np.ndarray, actions: np.ndarray, p: np.ndarray, torque: np.ndarray,
-                   gears: np.ndarray, on_grass: np.ndarray, dt: float, n_sub: int) -> None:
+                   gears: np.ndarray, on_grass: np.ndarray, dt: float, n_sub: int,
+                   surf: np.ndarray, on_surface: np.ndarray) -> None:
     """Advance N cars ``n_sub`` substeps of ``dt`` on an open plane (no track, no walls).
 
     The physics tests (top speed, cornering, braking, sliding) drive the car here, so they check
-    the vehicle model alone; the env adds the track around the same ``physics_substep``.
+    the vehicle model alone; the env adds the track around the same ``physics_substep``. Car
+    ``c`` with ``on_surface[c]`` set drives on the uniform slope, banking and vertical
+    curvature of row ``c`` of ``surf`` (``E_*`` columns) instead of the level plane.
     """
     for c in range(state.shape[0]):
         st = state[c]
@@ -975,10 +1068,16 @@ def integrate_free(state: np.ndarray, actions: np.ndarray, p: np.ndarray, torque
         sd = math.sin(steer * p[P_STEER])
         cp = math.cos(st[ST_PSI])
         sp = math.sin(st[ST_PSI])
-        for _ in range(n_sub):
-            cp, sp = physics_substep(st, steer, cd, sd, throttle, brake, p, torque, gears,
-                                     on_grass[c] != 0, dt, cp, sp)
-            st[ST_TIME] += dt
+        if on_surface[c] != 0:
+            for _ in range(n_sub):
+                cp, sp = physics_substep(st, steer, cd, sd, throttle, brake, p, torque, gears,
+                                         on_grass[c] != 0, dt, cp, sp, surf, c, True)
+                st[ST_TIME] += dt
+        else:  # (a constant switch, as in control_step: the level plane compiles as before)
+            for _ in range(n_sub):
+                cp, sp = physics_substep(st, steer, cd, sd, throttle, brake, p, torque, gears,
+                                         on_grass[c] != 0, dt, cp, sp, surf, c, False)
+                st[ST_TIME] += dt
 
 
 @njit(cache=True, _nrt=False)  # no fastmath: FMA contraction would break bit-identity

@@ -21,6 +21,14 @@ Format (one file per track)::
     angle_deg = 180.0             # sign gives the direction: left (counter-clockwise) > 0
     end_radius_m = 150.0          # optional: a spiral, radius linear in turned angle
     steps = 12                    # optional, with end_radius_m: TORCS' stepped spiral (below)
+    z_end_m = 12.0                # optional on any segment, with z_start_m, grade_start_pct,
+    banking_deg = 5.0             # grade_end_pct, banking_start_deg, banking_end_deg
+
+Heights and banking (:func:`surface_profile`): a segment starts where the previous one ended
+(``z_start_m`` overrides; 0 for the first) and ends at ``z_end_m`` (default: level); between, the
+height is the cubic through the end heights with the end slopes ``grade_*_pct`` (default: the
+chord's, a straight ramp). Banking (> 0 raises the left edge) is linear from start to end; a
+segment without banking keys is not banked. A track without any of these keys is flat.
 
 A spiral without ``steps`` is ours: its radius is linear in the turned angle (built from ~2 m
 sub-arcs), and it is ``angle * (radius + end_radius) / 2`` long. With ``steps = N`` it is the
@@ -44,7 +52,7 @@ import numpy as np
 
 from formula_tourney.errors import UserInputError
 from formula_tourney.safeio import check_name, read_user_text
-from formula_tourney.sim.track import SAMPLE_SPACING_M, Track
+from formula_tourney.sim.track import LEVEL_SEPARATION_M, SAMPLE_SPACING_M, Track
 
 CLOSURE_TOLERANCE_M = 1.0
 """A track whose end misses its start by more than this is refused (issue 2)."""
@@ -71,9 +79,20 @@ MAX_STEPPED_ARCS = 100_000
 lane object, and a TORCS file can ask for any number (a tiny ``profil steps length``). The
 38 tracks of torcs-data use at most a few thousand."""
 
+Z_CLOSURE_TOLERANCE_M = 1.0
+"""A track whose last segment ends more than this above or below its start is refused; a smaller
+gap is spread along the lap like the plan's closure gap."""
+
+MAX_ABS_Z_M = 10_000.0
+MAX_ABS_GRADE_PCT = 100.0
+MAX_ABS_BANKING_DEG = 45.0
+
+SURFACE_KEYS = ("z_start_m", "z_end_m", "grade_start_pct", "grade_end_pct", "banking_deg",
+                "banking_start_deg", "banking_end_deg")
+"""Optional on any segment: heights, the profile's end slopes and the banking (module doc)."""
 TOP_KEYS = ("name", "description", "width_m", "width_left_m", "width_right_m", "segment")
-STRAIGHT_KEYS = ("type", "length_m", "name")
-ARC_KEYS = ("type", "radius_m", "angle_deg", "end_radius_m", "steps", "name")
+STRAIGHT_KEYS = ("type", "length_m", "name", *SURFACE_KEYS)
+ARC_KEYS = ("type", "radius_m", "angle_deg", "end_radius_m", "steps", "name", *SURFACE_KEYS)
 SEGMENT_TYPES = ("straight", "arc")
 MIN_WIDTH_M = 3.0
 MAX_WIDTH_M = 60.0
@@ -91,6 +110,23 @@ class SegmentSpec:
     name: str = ""
     steps: int | None = None
     """With ``end_radius_m``: a TORCS stepped spiral of this many arcs (module docstring)."""
+    z_start_m: float | None = None
+    """Centreline height at the start; None: where the previous segment ended (0 for the first)."""
+    z_end_m: float | None = None
+    """Centreline height at the end; None: the start height (a level segment)."""
+    grade_start_pct: float | None = None
+    """Slope of the height profile at the start and end (100 dz/ds); None: the chord's slope,
+    so a segment with neither is a straight ramp. With them the profile is a cubic."""
+    grade_end_pct: float | None = None
+    banking_start_deg: float = 0.0
+    """Banking at the start and end (> 0 raises the left edge), linear along the segment."""
+    banking_end_deg: float = 0.0
+
+    @property
+    def has_surface(self) -> bool:
+        return (self.z_start_m is not None or self.z_end_m is not None
+                or self.grade_start_pct is not None or self.grade_end_pct is not None
+                or self.banking_start_deg != 0.0 or self.banking_end_deg != 0.0)
 
     @property
     def arc_length_m(self) -> float:
@@ -118,6 +154,15 @@ class SegmentSpec:
                 out["steps"] = self.steps
         if self.name:
             out["name"] = self.name
+        for key in ("z_start_m", "z_end_m", "grade_start_pct", "grade_end_pct"):
+            if getattr(self, key) is not None:
+                out[key] = getattr(self, key)
+        if self.banking_start_deg == self.banking_end_deg:
+            if self.banking_start_deg != 0.0:
+                out["banking_deg"] = self.banking_start_deg
+        else:
+            out["banking_start_deg"] = self.banking_start_deg
+            out["banking_end_deg"] = self.banking_end_deg
         return out
 
 
@@ -291,9 +336,10 @@ def _segment(
     seg_name = raw.get("name", "")
     if not isinstance(seg_name, str):
         raise UserInputError(f"{where('name')}: {head}: 'name' must be a string")
+    surface = _surface_keys(raw, head, where)
     if kind == "straight":
         length = _number(raw, "length_m", f"{where('length_m')}: {head}", low=1e-3, high=1e5)
-        return SegmentSpec("straight", length_m=length, name=seg_name)
+        return SegmentSpec("straight", length_m=length, name=seg_name, **surface)
     radius = _number(raw, "radius_m", f"{where('radius_m')}: {head}", low=1e-3, high=1e6)
     angle = _number(raw, "angle_deg", f"{where('angle_deg')}: {head}", low=-360.0, high=360.0)
     if angle == 0.0:
@@ -325,7 +371,32 @@ def _segment(
             f"half-width {inside:g} m (the inner edge would fold over itself)"
         )
     return SegmentSpec("arc", radius_m=radius, angle_deg=angle, end_radius_m=end, name=seg_name,
-                       steps=steps)
+                       steps=steps, **surface)
+
+
+def _surface_keys(raw: dict, head: str, where) -> dict[str, Any]:
+    """The optional height, slope and banking keys of a segment table, validated."""
+    out: dict[str, Any] = {}
+    for key in ("z_start_m", "z_end_m"):
+        if key in raw:
+            out[key] = _number(raw, key, f"{where(key)}: {head}", low=-MAX_ABS_Z_M,
+                               high=MAX_ABS_Z_M)
+    for key in ("grade_start_pct", "grade_end_pct"):
+        if key in raw:
+            out[key] = _number(raw, key, f"{where(key)}: {head}", low=-MAX_ABS_GRADE_PCT,
+                               high=MAX_ABS_GRADE_PCT)
+    lim = MAX_ABS_BANKING_DEG
+    if "banking_deg" in raw:
+        if "banking_start_deg" in raw or "banking_end_deg" in raw:
+            raise UserInputError(
+                f"{where('banking_deg')}: {head}: give banking_deg or banking_start_deg/"
+                "banking_end_deg, not both")
+        b = _number(raw, "banking_deg", f"{where('banking_deg')}: {head}", low=-lim, high=lim)
+        out["banking_start_deg"] = out["banking_end_deg"] = b
+    for key in ("banking_start_deg", "banking_end_deg"):
+        if key in raw:
+            out[key] = _number(raw, key, f"{where(key)}: {head}", low=-lim, high=lim)
+    return out
 
 
 def _number(
@@ -482,10 +553,13 @@ def build_track(spec: TrackSpec, label: str, source: str = "") -> Track:
             f"{label}: track does not close smoothly: it returns to the start {kink:+.2f} deg "
             f"off the start heading (tolerance {HEADING_TOLERANCE_DEG:g} deg)"
         )
-    if abs(abs(turned) - 2 * math.pi) > math.radians(HEADING_TOLERANCE_DEG):
+    laps_turned = round(turned / (2 * math.pi))
+    if (abs(turned - 2 * math.pi * laps_turned) > math.radians(HEADING_TOLERANCE_DEG)
+            or (laps_turned not in (-1, 1) and not spec_has_surface(spec))):
         raise UserInputError(
             f"{label}: segments turn {math.degrees(turned):+.1f} deg in total; a simple closed "
-            "track turns +360 (counter-clockwise) or -360 (clockwise)"
+            "track turns +360 (counter-clockwise) or -360 (clockwise); another multiple of 360 "
+            "(a figure of eight turns 0) needs heights, a bridge where it crosses itself"
         )
 
     n = max(int(round(length / SAMPLE_SPACING_M)), 8)
@@ -504,6 +578,7 @@ def build_track(spec: TrackSpec, label: str, source: str = "") -> Track:
     y -= gap[1] * s / length
     heading = np.angle(np.exp(1j * heading))
     curvature = np.array([p.curvature_1pm for p in pieces])[which]
+    z, banking = surface_profile(spec, label, pieces, starts, s, which, length)
     seg_start = {}
     for idx, p in enumerate(pieces):
         seg_start.setdefault(p.segment, starts[idx])
@@ -526,21 +601,86 @@ def build_track(spec: TrackSpec, label: str, source: str = "") -> Track:
         closure_error_m=closure,
         segments=segments,
         source=source,
+        z_m=z,
+        banking_rad=banking,
     )
     overlap = find_overlap(track)
     if overlap is not None:
         s_a, s_b, dist = overlap
         raise UserInputError(
             f"{label}: track overlaps itself: the asphalt at s={s_a:.0f} m and s={s_b:.0f} m is "
-            f"{dist:.1f} m apart centre to centre (a 2D track cannot cross itself)"
+            f"{dist:.1f} m apart centre to centre (a track can only cross itself on a bridge, "
+            f"more than {LEVEL_SEPARATION_M:g} m above the other part)"
         )
     return track
+
+
+def spec_has_surface(spec: TrackSpec) -> bool:
+    return any(seg.has_surface for seg in spec.segments)
+
+
+def segment_heights(spec: TrackSpec) -> list[tuple[float, float, float, float, float, float]]:
+    """Per segment ``(z0, z1, slope0, slope1, bank0, bank1)``: heights (m), profile slopes
+    (dz/ds) and banking (rad) at its start and end, with the defaults of the format applied."""
+    out = []
+    z_prev = 0.0
+    for seg in spec.segments:
+        z0 = z_prev if seg.z_start_m is None else seg.z_start_m
+        z1 = z0 if seg.z_end_m is None else seg.z_end_m
+        chord = (z1 - z0) / seg.arc_length_m
+        g0 = chord if seg.grade_start_pct is None else seg.grade_start_pct / 100.0
+        g1 = chord if seg.grade_end_pct is None else seg.grade_end_pct / 100.0
+        out.append((z0, z1, g0, g1, math.radians(seg.banking_start_deg),
+                    math.radians(seg.banking_end_deg)))
+        z_prev = z1
+    return out
+
+
+def surface_profile(spec: TrackSpec, label: str, pieces: list[_Piece], starts: np.ndarray,
+                    s: np.ndarray, which: np.ndarray, length: float
+                    ) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Heights and banking at the samples ``s`` (None, None for a flat spec).
+
+    Along a segment of length ``L`` the height is the cubic (Hermite) through its end heights
+    with the end slopes given, in the fraction ``t = (s - s_start) / L``: ``z = z0 h00(t) +
+    L g0 h10(t) + z1 h01(t) + L g1 h11(t)``; without slopes it is the straight ramp. The banking
+    is linear in ``t``. A height gap between the last segment's end and the first's start is
+    refused above :data:`Z_CLOSURE_TOLERANCE_M`, and a smaller one spread along the lap.
+    """
+    if not spec_has_surface(spec):
+        return None, None
+    rows = segment_heights(spec)
+    z_gap = rows[-1][1] - rows[0][0]
+    if abs(z_gap) > Z_CLOSURE_TOLERANCE_M:
+        raise UserInputError(
+            f"{label}: track does not close in height: it ends {z_gap:+.2f} m above its start "
+            f"(tolerance {Z_CLOSURE_TOLERANCE_M:g} m)"
+        )
+    seg_of = np.array([p.segment for p in pieces])[which]
+    seg_start = np.full(len(spec.segments), np.inf)
+    for idx, p in enumerate(pieces):
+        seg_start[p.segment] = min(seg_start[p.segment], starts[idx])
+    seg_len = np.array([seg.arc_length_m for seg in spec.segments])
+    table = np.array(rows)
+    t = np.clip((s - seg_start[seg_of]) / seg_len[seg_of], 0.0, 1.0)
+    z0, z1, g0, g1, b0, b1 = (table[seg_of, k] for k in range(6))
+    big_l = seg_len[seg_of]
+    t2 = t * t
+    t3 = t2 * t
+    z = ((2 * t3 - 3 * t2 + 1) * z0 + (t3 - 2 * t2 + t) * big_l * g0
+         + (-2 * t3 + 3 * t2) * z1 + (t3 - t2) * big_l * g1)
+    z = z - z_gap * s / length
+    banking = b0 + t * (b1 - b0)
+    return z, banking
 
 
 def find_overlap(
     track: Track, margin_m: float = OVERLAP_MARGIN_M
 ) -> tuple[float, float, float] | None:
     """First pair of distant track parts whose asphalt (plus margin) overlaps, else None.
+
+    Parts more than :data:`~formula_tourney.sim.track.LEVEL_SEPARATION_M` apart in height do
+    not overlap (one crosses the other on a bridge).
 
     Two samples are *distant* when the way between them along the track is longer than half a
     circle of diameter ``reach`` (a hairpin whose legs are ``reach`` apart is that long); such
@@ -560,7 +700,9 @@ def find_overlap(
     along = np.minimum(along, track.length_m - along)
     dist = np.hypot(track.x_m[i] - track.x_m[j], track.y_m[i] - track.y_m[j])
     needed = half[i] + half[j] + margin_m
-    bad = (along > 0.5 * math.pi * reach) & (dist < needed)
+    # 3-D: parts more than LEVEL_SEPARATION_M apart in height are a bridge over a road.
+    level = np.abs(track.z_m[i] - track.z_m[j]) <= LEVEL_SEPARATION_M
+    bad = (along > 0.5 * math.pi * reach) & (dist < needed) & level
     if not bad.any():
         return None
     k = int(np.argmin(np.where(bad, dist, np.inf)))

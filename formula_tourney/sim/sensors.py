@@ -18,7 +18,9 @@ index name              raw quantity              unit     normalised value
                         offset) / half width               (left > 0), beyond 1 on the grass
 21    speedX            body longitudinal speed   m/s      v / 83.33 (300 km/h = 1)
 22    speedY            body lateral speed        m/s      v / 83.33 (left > 0)
-23    speedZ            vertical speed            m/s      always 0 (flat tracks), kept for SCR
+23    speedZ            vertical speed            m/s      v / 83.33: along-track speed x
+                                                           sin(grade) + across-track speed x
+                                                           sin(bank); 0 on flat tracks
 24-27 wheelSpinVel_FL,  wheel spin speeds         rad/s    omega / 250 (~300 km/h = 1)
       _FR, _RL, _RR
 28    rpm               engine speed              rpm      rpm / 10000
@@ -125,6 +127,38 @@ def track_geometry(track: Track, reference: ReferenceLine) -> np.ndarray:
     g[:, K.G_SLEN] = np.diff(np.append(track.s_m, track.length_m))
     block_capsules(g)
     return np.ascontiguousarray(g)
+
+
+def surface_block(track: Track) -> np.ndarray:
+    """Per-sample surface constants the physics reads on a track with heights or banking
+    (``E_*`` columns of :mod:`kernels`): gravity's in-plane part in world axes and its normal
+    part, vertical curvature, sin/cos of the banking, sin of the grade, the heading's cos/sin.
+    A flat track gives zeros for the gravity terms and is never read (``C_ELEV`` unset)."""
+    return surface_rows(track.heading_rad, track.slope_rad, track.banking_rad,
+                        track.vertical_curvature_1pm, track.z_m)
+
+
+def surface_rows(heading_rad, slope_rad, banking_rad, kv_1pm, z_m=0.0) -> np.ndarray:
+    """:func:`surface_block` from arrays (or scalars broadcast together)."""
+    h, th, b, kv, z = np.broadcast_arrays(*(np.atleast_1d(np.asarray(a, dtype=float))
+                                            for a in (heading_rad, slope_rad, banking_rad,
+                                                      kv_1pm, z_m)))
+    e = np.zeros((h.shape[0], K.N_ELEV))
+    g = K.GRAVITY
+    along = -g * np.sin(th)
+    lat = -g * np.cos(th) * np.sin(b)
+    ch, sh = np.cos(h), np.sin(h)
+    e[:, K.E_Z] = z
+    e[:, K.E_GX] = along * ch - lat * sh
+    e[:, K.E_GY] = along * sh + lat * ch
+    e[:, K.E_GN] = g * np.cos(th) * np.cos(b)
+    e[:, K.E_KV] = kv
+    e[:, K.E_SB] = np.sin(b)
+    e[:, K.E_ICB] = 1.0 / np.cos(b)
+    e[:, K.E_SG] = np.sin(th)
+    e[:, K.E_CH] = ch
+    e[:, K.E_SH] = sh
+    return np.ascontiguousarray(e)
 
 
 def block_capsules(g: np.ndarray) -> None:

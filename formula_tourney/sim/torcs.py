@@ -15,7 +15,26 @@ A TORCS track file is a ``<params>`` document; what we read is::
         </section>
 
 Like TORCS, numbers without a unit are SI (metres, radians) and the start line is the start of
-the first segment. Elevation, banking, borders, sides and pits are ignored (the simulator is flat).
+the first segment. Heights and banking are read (:func:`_heights`); borders, sides and pits are
+ignored.
+
+Heights as TORCS' loader builds them. Each segment has a height at its start and end on each
+edge. The start heights are where the previous segment ended unless ``z start`` (both edges) or
+``z start left``/``z start right`` say otherwise; the end heights come from ``z end`` (or its
+per-edge forms), else from ``grade`` (the centre climbs ``grade x length``; a grade once given
+holds for the following segments until another is given), else stay the previous end's. The
+banking at each end is the edges' height difference over the width unless ``banking start`` /
+``banking end`` set it, and the edges are then put at the centre height plus or minus
+``tan(banking) x width / 2``. Between its ends, each edge follows a cubic in the fraction of
+the segment travelled (a Hermite curve: the end heights and the end slopes, each slope times
+the segment's declared length); the slopes default to the previous segment's end slope, are
+set by ``profil start tangent`` / ``profil end tangent`` (and their left/right forms), and
+with ``profil`` other than ``spline`` are the chord's, which makes the profile a straight
+ramp. TORCS evaluates the cubic at the ends of the segment's sub-segments and joins those
+points by straight pieces; a segment of one sub-segment is therefore a ramp whatever its
+slopes. The import keeps the centreline's cubic for segments of several sub-segments (it meets
+TORCS' heights at every sub-segment end) and the ramp for segments of one; the banking is
+linear between its end values.
 
 Geometry is built as TORCS' track loader builds it, so that a track closes (or misses) exactly
 where TORCS' does. TORCS cuts every segment into *sub-segments*; for straights and arcs of
@@ -57,6 +76,7 @@ from pathlib import Path
 from formula_tourney.errors import UserInputError
 from formula_tourney.safeio import check_name
 from formula_tourney.sim.segments import (
+    MAX_ABS_BANKING_DEG,
     MAX_SEGMENTS,
     MAX_STEPPED_ARCS,
     MAX_WIDTH_M,
@@ -78,6 +98,7 @@ LENGTH_UNITS = {"": 1.0, "m": 1.0, "ft": 0.3048, "feet": 0.3048, "km": 1000.0, "
                 "mm": 0.001, "in": 0.0254, "%": 0.01}
 ANGLE_UNITS = {"": 1.0, "rad": 1.0, "deg": math.pi / 180.0, "%": 0.01}
 COUNT_UNITS = {"": 1.0}
+SLOPE_UNITS = {"": 1.0, "%": 0.01}
 """Unit factors to SI, as TORCS' GfParm applies them (``%`` divides by 100)."""
 
 PREDEFINED_ENTITIES = {"amp", "lt", "gt", "quot", "apos"}
@@ -329,6 +350,7 @@ def _spec_from_root(root, label: str, name: str) -> TrackSpec:
     global_step = _num(main, "profil steps length", LENGTH_UNITS, f"{label}: Main Track", 0.0)
     half = width / 2.0
     out: list[SegmentSpec] = []
+    cuts: list[tuple[float, int]] = []  # (declared length, sub-segments) per segment
     for k, sec in enumerate(raw_segments, start=1):
         seg_name = sec.get("name", f"#{k}")
         where = f"{label}: segment {k} ({seg_name!r})"
@@ -338,8 +360,9 @@ def _spec_from_root(root, label: str, name: str) -> TrackSpec:
             length = _num(sec, "lg", LENGTH_UNITS, where)
             if length is None or length <= 0:
                 raise UserInputError(f"{where}: a straight needs a positive 'lg'")
-            _sub_segments(sec, length, global_step, where)  # refuses a vanishing segment
+            steps = _sub_segments(sec, length, global_step, where)  # refuses a vanishing one
             out.append(SegmentSpec("straight", length_m=length, name=seg_name))
+            cuts.append((length, steps))
         elif kind in ("lft", "rgt"):
             radius = _num(sec, "radius", LENGTH_UNITS, where)
             arc = _num(sec, "arc", ANGLE_UNITS, where)
@@ -370,13 +393,94 @@ def _spec_from_root(root, label: str, name: str) -> TrackSpec:
             else:
                 out.append(SegmentSpec("arc", radius_m=radius, angle_deg=sign * math.degrees(arc),
                                        end_radius_m=end_r, steps=steps, name=seg_name))
+            cuts.append((declared, steps))
         else:
             raise UserInputError(
                 f"{where}: 'type' must be str, lft or rgt, got {kind or 'nothing'!r}"
             )
+    out = _heights(raw_segments, out, cuts, width, label)
     spec = TrackSpec(name=name, width_left_m=half, width_right_m=half, segments=out,
                      description=f"imported from TORCS file {Path(label).name}")
     # Lengths are checked on the spec, before any lane or sample array exists (a 1e9 m
     # straight once allocated GiBs before it was refused).
     check_track_size(spec, label)
     return spec
+
+
+def _heights(raw_segments, segs: list[SegmentSpec], cuts: list[tuple[float, int]], width: float,
+             label: str) -> list[SegmentSpec]:
+    """Segments with TORCS' heights, profile slopes and banking (module docstring); unchanged
+    when the file has none (every height and banking 0: a flat track stays flat)."""
+    import dataclasses
+
+    zel = zer = 0.0  # previous segment's end heights, left and right edge
+    etl = etr = 0.0  # previous segment's end slopes (TORCS' tangents)
+    grade = None  # sticky, as in TORCS
+    rows = []
+    for k, (sec, (length, steps)) in enumerate(zip(raw_segments, cuts, strict=True), start=1):
+        where = f"{label}: segment {k} ({sec.get('name', f'#{k}')!r})"
+
+        def num(name, units=LENGTH_UNITS, default=None, sec=sec, where=where):
+            return _num(sec, name, units, where, default)
+
+        zsl = num("z start left", default=zel)
+        zsr = num("z start right", default=zer)
+        zel = num("z end left", default=zel)
+        zer = num("z end right", default=zer)
+        zs = num("z start")
+        ze = num("z end")
+        grade = num("grade", SLOPE_UNITS, grade)
+        if zs is not None:
+            zsl = zsr = zs
+        else:
+            zs = 0.5 * (zsl + zsr)
+        if ze is not None:
+            zel = zer = ze
+        elif grade is not None:
+            ze = zs + length * grade
+        else:
+            ze = 0.5 * (zel + zer)
+        bank_s = num("banking start", ANGLE_UNITS, math.atan2(zsl - zsr, width))
+        bank_e = num("banking end", ANGLE_UNITS, math.atan2(zel - zer, width))
+        if max(abs(bank_s), abs(bank_e)) >= math.radians(MAX_ABS_BANKING_DEG):
+            raise UserInputError(
+                f"{where}: banking {math.degrees(max(abs(bank_s), abs(bank_e))):.1f} deg; at "
+                f"most {MAX_ABS_BANKING_DEG:g} deg is accepted")
+        d = math.tan(bank_s) * width / 2.0
+        zsl, zsr = zs + d, zs - d
+        d = math.tan(bank_e) * width / 2.0
+        zel, zer = ze + d, ze - d
+        node = _attr(sec, "profil")
+        profil = (node.get("val") or "").strip() if node is not None else "spline"
+        stl, str_ = etl, etr
+        if profil == "spline":
+            stl = num("profil start tangent left", SLOPE_UNITS, stl)
+            etl = num("profil end tangent left", SLOPE_UNITS, etl)
+            str_ = num("profil start tangent right", SLOPE_UNITS, str_)
+            etr = num("profil end tangent right", SLOPE_UNITS, etr)
+            st_both = num("profil start tangent", SLOPE_UNITS)
+            et_both = num("profil end tangent", SLOPE_UNITS)
+            if st_both is not None:
+                stl = str_ = st_both
+            if et_both is not None:
+                etl = etr = et_both
+        else:
+            steps = 1
+            stl = etl = (zel - zsl) / length
+            str_ = etr = (zer - zsr) / length
+        rows.append((zs, ze, 0.5 * (stl + str_), 0.5 * (etl + etr), bank_s, bank_e, length,
+                     steps))
+    if all(r[0] == 0.0 and r[1] == 0.0 and r[4] == 0.0 and r[5] == 0.0 for r in rows):
+        return segs
+    out = []
+    for seg, (zs, ze, t0, t1, bank_s, bank_e, length, steps) in zip(segs, rows, strict=True):
+        extra: dict = {"z_start_m": zs, "z_end_m": ze,
+                       "banking_start_deg": math.degrees(bank_s),
+                       "banking_end_deg": math.degrees(bank_e)}
+        if steps > 1:
+            # TORCS scales the slopes by the declared length; ours by the built one.
+            scale = length / seg.arc_length_m * 100.0
+            extra["grade_start_pct"] = t0 * scale
+            extra["grade_end_pct"] = t1 * scale
+        out.append(dataclasses.replace(seg, **extra))
+    return out

@@ -14,6 +14,15 @@ import numpy as np
 SAMPLE_SPACING_M = 1.0
 """Target spacing of centreline samples; ~1 m keeps projection exact to millimetres."""
 
+VERTICAL_CURVATURE_WINDOW_M = 10.0
+"""Vertical curvature is the change of the grade over this much track (a centred mean): TORCS
+profiles are chains of straight pieces, and a kink between two of them would otherwise be one
+sample of huge curvature (a 1 % kink is 0.01 1/m over 1 m, 2.5 g of unloading at 50 m/s)."""
+
+LEVEL_SEPARATION_M = 4.0
+"""Two parts of a track whose heights differ by more than this are on different levels (a
+bridge over the other): they may cross in plan, and a car on one never projects onto the other."""
+
 
 @dataclass(frozen=True, eq=False)
 class Track:
@@ -21,6 +30,12 @@ class Track:
 
     Arrays all have length ``n``; sample ``n`` would coincide with sample 0 (the track is closed,
     the last segment runs from ``n-1`` back to 0 with length ``length_m - s_m[-1]``).
+
+    Heights and banking: ``z_m`` (centreline height, m) and ``banking_rad`` (> 0 raises the left
+    edge, TORCS' sign), both zero when not given (a flat track). Derived from them:
+    ``slope_rad`` (the grade, uphill in the driving direction > 0) and
+    ``vertical_curvature_1pm`` (> 0 a crest, < 0 a compression). ``x, y`` stay the horizontal
+    plan and ``s`` the horizontal arc length.
     """
 
     name: str
@@ -35,6 +50,27 @@ class Track:
     closure_error_m: float = 0.0
     segments: list[dict] = field(default_factory=list)
     source: str = ""
+    z_m: np.ndarray | None = None
+    banking_rad: np.ndarray | None = None
+    slope_rad: np.ndarray = field(init=False, repr=False)
+    vertical_curvature_1pm: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        n = self.s_m.shape[0]
+        z = np.zeros(n) if self.z_m is None else np.asarray(self.z_m, dtype=float)
+        bank = np.zeros(n) if self.banking_rad is None else np.asarray(self.banking_rad, float)
+        if z.shape != (n,) or bank.shape != (n,):
+            raise ValueError("z_m and banking_rad need one value per sample")
+        slope, kv = slope_and_vertical_curvature(self.s_m, z, self.length_m)
+        object.__setattr__(self, "z_m", z)
+        object.__setattr__(self, "banking_rad", bank)
+        object.__setattr__(self, "slope_rad", slope)
+        object.__setattr__(self, "vertical_curvature_1pm", kv)
+
+    @property
+    def has_surface(self) -> bool:
+        """True when any height or banking is non-zero (the physics then reads the surface)."""
+        return bool(np.any(self.z_m != 0.0) or np.any(self.banking_rad != 0.0))
 
     @property
     def n(self) -> int:
@@ -72,15 +108,22 @@ class Track:
         lat = np.asarray(lateral_m, dtype=float)
         return x - lat * np.sin(h), y + lat * np.cos(h), h
 
-    def project(self, x_m: float, y_m: float, hint_index: int = -1, window: int = 30):
+    def project(self, x_m: float, y_m: float, hint_index: int = -1, window: int = 30,
+                z_m: float | None = None):
         """Arc length, lateral offset and segment index of a world point.
 
         With a ``hint_index`` (the previous result) only ``window`` samples either side are
         searched: a car moves at most ~20 m per 0.2 s step, so a local search replaces the
-        global scan the step loop must never do. Without a hint the whole track is scanned.
+        global scan the step loop must never do, and it cannot jump to another level of a track
+        that crosses itself on a bridge. Without a hint the whole track is scanned; give
+        ``z_m`` there to keep to the samples within :data:`LEVEL_SEPARATION_M` of that height.
         """
         if hint_index < 0:
             idx = np.arange(self.n)
+            if z_m is not None:
+                near = np.abs(self.z_m - z_m) <= LEVEL_SEPARATION_M
+                if near.any():
+                    idx = idx[near]
         else:
             idx = np.arange(hint_index - window, hint_index + window + 1) % self.n
         nxt = (idx + 1) % self.n
@@ -111,9 +154,12 @@ class Track:
         segments: list[dict] | None = None,
         source: str = "",
         spacing_m: float = SAMPLE_SPACING_M,
+        z_m: np.ndarray | float = 0.0,
+        banking_rad: np.ndarray | float = 0.0,
     ) -> Track:
         """Resample a closed polyline (last point != first) to ~``spacing_m`` and derive
-        heading and curvature by central differences on the closed loop."""
+        heading and curvature by central differences on the closed loop (heights and banking,
+        if given, are resampled the same way)."""
         x = np.asarray(x_m, dtype=float)
         y = np.asarray(y_m, dtype=float)
         wl = np.broadcast_to(np.asarray(width_left_m, dtype=float), x.shape)
@@ -128,11 +174,16 @@ class Track:
         ys = np.interp(s, s_in, yc)
         wls = np.interp(s, s_in, np.append(wl, wl[0]))
         wrs = np.interp(s, s_in, np.append(wr, wr[0]))
+        zz = np.broadcast_to(np.asarray(z_m, dtype=float), x.shape)
+        bb = np.broadcast_to(np.asarray(banking_rad, dtype=float), x.shape)
+        zs = np.interp(s, s_in, np.append(zz, zz[0]))
+        bs = np.interp(s, s_in, np.append(bb, bb[0]))
         heading, curvature = closed_heading_curvature(xs, ys)
         return cls(
             name=name, s_m=s, x_m=xs, y_m=ys, heading_rad=heading, curvature_1pm=curvature,
             width_left_m=wls, width_right_m=wrs, length_m=length,
             closure_error_m=float(closure_error_m), segments=list(segments or []), source=source,
+            z_m=zs, banking_rad=bs,
         )
 
 
@@ -145,3 +196,23 @@ def closed_heading_curvature(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, 
     heading = np.arctan2(dy, dx)
     curvature = (dx * ddy - dy * ddx) / np.maximum((dx * dx + dy * dy) ** 1.5, 1e-12)
     return heading, curvature
+
+
+def slope_and_vertical_curvature(s_m: np.ndarray, z_m: np.ndarray, length_m: float
+                                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Grade (rad, uphill > 0) and vertical curvature (1/m, crest > 0) of a closed height
+    profile: the grade by central differences, the curvature as minus the change of the grade
+    over :data:`VERTICAL_CURVATURE_WINDOW_M` per metre of surface. Zeros for a flat profile."""
+    n = s_m.shape[0]
+    if not np.any(z_m):
+        return np.zeros(n), np.zeros(n)
+    s_next = np.append(s_m[1:], length_m)
+    s_prev = np.insert(s_m[:-1], 0, s_m[-1] - length_m)
+    dz = np.roll(z_m, -1) - np.roll(z_m, 1)
+    slope = np.arctan(dz / np.maximum(s_next - s_prev, 1e-12))
+    spacing = length_m / n
+    half = max(int(round(0.5 * VERTICAL_CURVATURE_WINDOW_M / spacing)), 1)
+    ahead = np.roll(slope, -half)
+    behind = np.roll(slope, half)
+    kv = -(ahead - behind) / (2 * half * spacing) * np.cos(slope)
+    return slope, kv
