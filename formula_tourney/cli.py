@@ -9,10 +9,18 @@ from __future__ import annotations
 
 import sys
 
+import click
 import typer
 
 from formula_tourney.commands import agents, demo, lines, report, tourney, tracks
 from formula_tourney.errors import UserInputError
+
+try:  # recent typer releases bundle their own copy of click and raise its usage errors
+    from typer._click.exceptions import ClickException as _BundledClickException
+except ImportError:  # pragma: no cover - typer versions that use click itself
+    _BundledClickException = click.exceptions.ClickException
+
+USAGE_ERRORS = (click.exceptions.ClickException, _BundledClickException)
 
 app = typer.Typer(
     name="formula-tourney",
@@ -40,16 +48,12 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(exc.exit_code)
     except SystemExit:
         raise
-    except Exception as exc:  # click usage errors come through here in non-standalone mode
-        import click
-
-        if isinstance(exc, click.exceptions.ClickException):
-            exc.show()
-            sys.exit(exc.exit_code)
-        if isinstance(exc, click.exceptions.Abort):
-            print("aborted", file=sys.stderr)
-            sys.exit(130)
-        raise
+    except USAGE_ERRORS as exc:  # usage errors come through here in non-standalone mode
+        exc.show()
+        sys.exit(exc.exit_code)
+    except click.exceptions.Abort:
+        print("aborted", file=sys.stderr)
+        sys.exit(130)
     if isinstance(code, int) and code != 0:
         sys.exit(code)
 
