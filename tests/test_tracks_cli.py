@@ -172,3 +172,131 @@ def test_generated_names_are_reserved_and_seeds_bounded(capsys, data_dir):
     assert code == 2 and out == ""
     assert err == ("error: track 'gen-99999999999': seed 99999999999 is out of range; "
                    "gen-<seed> takes a seed in 0..999999999\n")
+
+
+HILLS = (
+    '<?xml version="1.0" encoding="UTF-8"?>\n<params name="t" type="param">\n'
+    '<section name="Main Track"><attnum name="width" unit="m" val="12"/>\n'
+    '<section name="Track Segments">\n'
+    '<section name="s1"><attstr name="type" val="str"/><attnum name="lg" unit="m" val="200"/>'
+    '<attnum name="z start" unit="m" val="0"/><attnum name="z end" unit="m" val="5"/></section>\n'
+    '<section name="t1"><attstr name="type" val="lft"/>'
+    '<attnum name="radius" unit="m" val="50"/><attnum name="arc" unit="deg" val="180"/>'
+    '<attnum name="grade" unit="%" val="2"/><attnum name="banking start" unit="deg" val="5"/>'
+    '<attnum name="banking end" unit="deg" val="5"/></section>\n'
+    '<section name="s2"><attstr name="type" val="str"/><attnum name="lg" unit="m" val="200"/>'
+    '<attnum name="z end" unit="m" val="2"/></section>\n'
+    '<section name="t2"><attstr name="type" val="lft"/>'
+    '<attnum name="radius" unit="m" val="50"/><attnum name="arc" unit="deg" val="180"/>'
+    '<attnum name="z end" unit="m" val="0"/></section>\n'
+    "</section></section></params>\n"
+)
+
+
+def torcs_tree(root):
+    """A TORCS-style tree: two good tracks (one flat, one with heights and banking), one bomb."""
+    files = {"oval/stadium/stadium.xml": torcs_xml(stadium_segments()),
+             "road/hills/hills.xml": HILLS, "road/broken/broken.xml": BOMB}
+    for rel, text in files.items():
+        (root / rel).parent.mkdir(parents=True)
+        (root / rel).write_text(text, encoding="utf-8")
+    return root
+
+
+def test_import_a_tree_table_json_and_exit_3(capsys, tmp_path, data_dir):
+    tree = torcs_tree(tmp_path / "tracks")
+    code, out, err = run(capsys, "tracks", "import", str(tree), "--json")
+    assert code == 3, err
+    doc = json.loads(out)
+    assert (doc["imported"], doc["failed"]) == (2, 1)
+    rows = {row["name"]: row for row in doc["tracks"]}
+    assert list(rows) == ["stadium", "broken", "hills"]  # sorted by path: oval/, road/b, road/h
+    assert rows["stadium"]["category"] == "oval" and rows["stadium"]["imported"] is True
+    assert rows["stadium"]["length_m"] == pytest.approx(400.0 + 2 * math.pi * 60.0, abs=1e-3)
+    assert rows["stadium"]["z_range_m"] == 0.0 and rows["stadium"]["max_banking_deg"] == 0.0
+    hills = rows["hills"]
+    assert hills["category"] == "road" and hills["imported"] is True
+    assert hills["z_range_m"] == pytest.approx(5.0 + 0.02 * 50 * math.pi, abs=1e-3)
+    assert hills["max_banking_deg"] == pytest.approx(5.0)
+    assert hills["saved"] == str(data_dir / "tracks" / "hills.toml")
+    broken = rows["broken"]
+    assert broken["imported"] is False and broken["saved"] is None
+    assert broken["reason"].startswith("line 3: internal entity definition 'lol' is refused")
+    assert sorted(p.name for p in (data_dir / "tracks").iterdir()) == ["hills.toml",
+                                                                       "stadium.toml"]
+    names = [row["name"] for row in run_json(capsys, "tracks", "list")["tracks"]]
+    assert names[3:] == ["hills", "stadium"]
+    # Again: the taken names are per-file failures in the table, not a crash; --force replaces.
+    code, out, err = run(capsys, "tracks", "import", str(tree))
+    assert code == 3 and "imported 0 of 3 track file(s)" in err and "3 failed" in err
+    assert out.count("already exists") == 2 and "Traceback" not in err
+    assert "stadium" in out and "8.14" in out and "5.0" in out
+    code, out, err = run(capsys, "tracks", "import", str(tree), "--force", "--json")
+    assert code == 3 and json.loads(out)["imported"] == 2
+    (tree / "road" / "broken" / "broken.xml").unlink()
+    code, out, err = run(capsys, "tracks", "import", str(tree), "--force")
+    assert code == 0 and "imported 2 of 2" in err
+
+
+def test_import_a_tree_with_two_files_of_one_name(capsys, tmp_path, data_dir):
+    for cat in ("oval", "road"):
+        (tmp_path / cat / "same").mkdir(parents=True)
+        (tmp_path / cat / "same" / "same.xml").write_text(torcs_xml(stadium_segments()))
+    code, out, _ = run(capsys, "tracks", "import", str(tmp_path), "--force", "--json")
+    rows = json.loads(out)["tracks"]
+    assert code == 3 and [r["imported"] for r in rows] == [True, False]
+    assert "'same' is already used by" in rows[1]["reason"]
+
+
+def test_import_bad_folders_exit_2(capsys, tmp_path, data_dir):
+    empty = tmp_path / "empty"
+    (empty / "road").mkdir(parents=True)
+    code, out, err = run(capsys, "tracks", "import", str(empty), "--json")
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert err == f"error: {empty}: no .xml track files in this folder or below it\n"
+    code, _, err = run(capsys, "tracks", "import", str(tmp_path / "nothere"))
+    assert code == 2 and "no such file or folder" in err
+    text = tmp_path / "notes.txt"
+    text.write_text("x")
+    code, _, err = run(capsys, "tracks", "import", str(text))
+    assert code == 2 and "not a folder" in err
+    code, _, err = run(capsys, "tracks", "import", str(empty), "--name", "x")
+    assert code == 2 and "--name applies to one .xml file" in err
+    assert not (data_dir / "tracks").exists()
+    code, out, _ = run(capsys, "tracks", "import", "--help")
+    assert code == 0 and "3 a folder import" in out
+
+
+TOURNEY = """\
+name = "real-tracks"
+
+[[parts]]
+name = "p1"
+entrants = ["WIN1"]
+train_tracks = [{train}]
+test_tracks = ["stadium"]
+"""
+
+
+def test_a_tournament_names_xml_files_and_imported_tracks(capsys, tmp_path, data_dir):
+    """A TORCS XML by relative path (against the tournament file) and an imported track by
+    name plan as they are; a missing XML is an error at its line, exit 2, nothing written."""
+    xml = tmp_path / "tt" / "stadium.xml"
+    xml.parent.mkdir()
+    xml.write_text(torcs_xml(stadium_segments()))
+    assert run_json(capsys, "tracks", "import", str(xml))["name"] == "stadium"
+    (tmp_path / "tt" / "hills.xml").write_text(HILLS)
+    path = tmp_path / "tt" / "real.toml"
+    path.write_text(TOURNEY.format(train='"hills.xml", "oval"'))
+    results = tmp_path / "res"
+    doc = run_json(capsys, "run", str(path), "--dry-run", "--results", str(results))
+    part = doc["plan"]["parts"][0]
+    assert part["train_tracks"] == ["hills.xml", "oval"] and part["test_tracks"] == ["stadium"]
+    assert doc["dry_run"] is True and doc["plan"]["known_jobs"] == 1
+    path.write_text(TOURNEY.format(train='"oval", "missing.xml"'))
+    code, out, err = run(capsys, "run", str(path), "--dry-run", "--json", "--results",
+                         str(results))
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert err == (f"error: {path}:6: parts[0].train_tracks: {xml.parent / 'missing.xml'}: "
+                   "track file not found\n")
+    assert not results.exists()

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 import typer
+from rich.markup import escape
 
 from formula_tourney.commands.output import emit, message
 from formula_tourney.errors import UserInputError
@@ -18,12 +19,17 @@ from formula_tourney.sim.generate import generate_spec
 from formula_tourney.sim.plot import check_plot_path, plot_tracks
 from formula_tourney.sim.track_store import (
     import_torcs_track,
+    import_torcs_tree,
     save_user_track,
     user_track_target,
 )
 
 JSON_HELP = "Print one JSON document on stdout."
 PLOT_HELP = "Write a track map (.png, .svg or .pdf)."
+EXIT_SOME_FAILED = 3
+IMPORT_EXIT_HELP = ("Exit codes: 0 all imported; 3 a folder import where some files failed (the "
+                    "table says why; the others are imported); 2 bad input (no such file or "
+                    "folder, no .xml in the folder, a bad single file).")
 
 
 def track_summary(track: Any) -> dict[str, Any]:
@@ -70,6 +76,29 @@ def _render_summary(summary: dict[str, Any]):
                 f"{seg['angle_deg']:+.1f}" if arc else "",
                 f"{seg['end_radius_m']:.1f}" if arc and "end_radius_m" in seg else "",
             )
+        console.print(table)
+
+    return render
+
+
+def _fmt(value: float | None, digits: int = 1) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+def _render_import_table(rows: list[dict[str, Any]]):
+    """Human view of a folder import: one row per file."""
+    from rich.table import Table
+
+    def render(console) -> None:
+        table = Table(show_edge=False)
+        for col in ("name", "category", "length (m)", "z range (m)", "max banking (deg)",
+                    "imported"):
+            table.add_column(col, justify="left" if col in ("name", "category", "imported")
+                             else "right")
+        for row in rows:
+            table.add_row(row["name"], row["category"], _fmt(row["length_m"]),
+                          _fmt(row["z_range_m"], 2), _fmt(row["max_banking_deg"]),
+                          "yes" if row["imported"] else f"[red]no[/red]: {escape(row['reason'])}")
         console.print(table)
 
     return render
@@ -122,22 +151,39 @@ def register(app: typer.Typer) -> None:
             summary["plot"] = str(plot_tracks(track, plot))
         emit(summary, as_json, _render_summary(summary))
 
-    @tracks_app.command("import")
+    @tracks_app.command("import", epilog=IMPORT_EXIT_HELP)
     def import_cmd(
-        file: Path = typer.Argument(..., help="TORCS track XML file."),
+        path: Path = typer.Argument(..., help="A TORCS track XML file, or a folder: every .xml "
+                                    "below it is imported (a TORCS tree such as "
+                                    "/usr/share/games/torcs/tracks)."),
         name: str | None = typer.Option(None, "--name", help="Track name (default: the file "
-                                        "name without .xml)."),
-        force: bool = typer.Option(False, "--force", help="Replace a user track of that name."),
+                                        "name without .xml; one file only)."),
+        force: bool = typer.Option(False, "--force", help="Replace user tracks of those names."),
         as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
     ) -> None:
-        """Convert a TORCS track XML to TOML in the user's tracks folder."""
-        if file.suffix.lower() != ".xml":
-            raise UserInputError(f"{file}: expected a TORCS .xml track file")
-        written = import_torcs_track(file, name, overwrite=force)
+        """Convert TORCS track XML to TOML in the user's tracks folder (one file or a tree)."""
+        if path.is_dir():
+            if name is not None:
+                raise UserInputError(f"--name applies to one .xml file, not a folder ({path})")
+            rows = import_torcs_tree(path, overwrite=force)
+            failed = sum(not row["imported"] for row in rows)
+            if not as_json:
+                message(f"imported {len(rows) - failed} of {len(rows)} track file(s) from {path}"
+                        + (f"; {failed} failed" if failed else ""))
+            emit({"folder": str(path), "imported": len(rows) - failed, "failed": failed,
+                  "tracks": rows}, as_json, _render_import_table(rows))
+            if failed:
+                raise typer.Exit(EXIT_SOME_FAILED)
+            return
+        if path.suffix.lower() != ".xml":
+            what = "not a folder" if path.exists() else "no such file or folder"
+            raise UserInputError(f"{path}: {what}; expected a TORCS .xml track file or a folder "
+                                 "of them")
+        written = import_torcs_track(path, name, overwrite=force)
         track = load_track(written)
         summary = {**track_summary(track), "name": written.stem, "saved": str(written)}
         if not as_json:
-            message(f"imported {file} as {written.stem!r}")
+            message(f"imported {path} as {written.stem!r}")
         emit(summary, as_json, _render_summary(summary))
 
     @tracks_app.command("generate")
