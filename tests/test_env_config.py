@@ -110,3 +110,13 @@ def test_reset_options_are_validated_by_the_config_module():
     _, info = env.reset(options=ResetOptions(start_s_m=200.0, start_speed_mps=10.0))
     assert info["s_m"] == pytest.approx(200.0, abs=1e-6)
     assert info["speed_mps"] == pytest.approx(10.0)
+
+
+def test_grip_scale_is_an_env_setting_with_a_range():
+    assert EnvSettings().grip_scale == 1.0
+    assert "friction" in EnvSettings.model_fields["grip_scale"].description
+    assert EnvSettings.parse({"grip_scale": 0.6}).overrides() == {"grip_scale": 0.6}
+    for bad in (0.1, 2.0, True, "1"):
+        with pytest.raises(UserInputError, match="grip_scale"):
+            EnvSettings.parse({"grip_scale": bad})
+    assert FormulaRacingEnv({"track": TRACK, "grip_scale": 0.8}).config["grip_scale"] == 0.8

@@ -127,6 +127,10 @@ class CarBatch:
         self.on_grass = np.zeros(n, dtype=np.uint8)
         self.surface = np.zeros((n, K.N_ELEV))
         self.on_surface = np.zeros(n, dtype=np.uint8)
+        self.grip = np.ones(n)
+        """Per car: friction multiplier of its surface (1.0 asphalt and the default grass)."""
+        self.rolling = np.zeros(n)
+        """Per car: extra rolling-resistance coefficient of its surface (0.0 asphalt)."""
         for c in range(n):
             set_start(self.state[c], self.car, 0.0, 0.0, 0.0, 0.0)
 
@@ -162,7 +166,7 @@ class CarBatch:
         n_sub = max(int(round(duration_s * self.physics_hz)), 1)
         K.integrate_free(self.state, a, self.arrays.params, self.arrays.torque,
                          self.arrays.gears, self.on_grass, duration_s / n_sub, n_sub,
-                         self.surface, self.on_surface)
+                         self.surface, self.on_surface, self.grip, self.rolling)
 
     @property
     def speed_mps(self) -> np.ndarray:

@@ -113,6 +113,11 @@ class EnvSettings(BaseModel):
     grass_width_m: Real = Field(
         5.0, ge=0.0, le=100.0, description="Grass beyond each asphalt edge before the wall."
     )
+    grip_scale: Real = Field(
+        1.0, ge=0.2, le=1.5,
+        description="Multiplier on every surface's friction (road and side): < 1 a slippery "
+        "track, > 1 a grippy one (docs/sim.md, Surfaces).",
+    )
     car: dict[str, Any] = Field(
         default_factory=dict,
         description="Overrides of the car's physical constants (keys of sim.car_params."

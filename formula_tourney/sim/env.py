@@ -105,7 +105,8 @@ class _Batch:
         c[K.C_SLOW_PEN] = cfg.slow_penalty
         c[K.C_LAC] = 1.0 if self.lac else 0.0
         c[K.C_LENGTH] = self.track.length_m
-        self.geom = track_geometry(self.track, self.reference)
+        self.geom = track_geometry(self.track, self.reference, cfg.grip_scale,
+                                   self.car.mu / self.car.mu_grass)
         # Heights and banking: read by the kernels only on a track that has them.
         c[K.C_ELEV] = 1.0 if self.track.has_surface else 0.0
         self.elev = surface_block(self.track)
@@ -364,7 +365,7 @@ class FormulaRacingEnv(gymnasium.Env):
     reference_line ("centre" or offsets per sample), lac, lac_distances_m, control_period_s,
     physics_hz (>= 100), max_steps, terminate_off_track, terminate_backwards, terminate_slow,
     slow_speed_kmh, slow_patience_steps, slow_penalty, damage_weight, random_start,
-    start_speed_mps, grass_width_m, car (CarParams overrides).
+    start_speed_mps, grass_width_m, grip_scale, car (CarParams overrides).
     `reset(seed=..., options={{"start_s_m": float, "start_speed_mps": float}})`.
 
     ## Version History

@@ -137,7 +137,16 @@ G_SLEN = 17
 # and the last (left, right): a ray whose line clears both capsules crosses those quads at once.
 G_BHL = 18
 G_BHR = 19
-N_GEOM = 20
+# Surfaces (docs/sim.md "Surfaces"): friction multipliers of the road (on ``P_MU``) and of the
+# side beyond each edge (on ``P_MU_GRASS``), already times the env's ``grip_scale``, and extra
+# rolling-resistance coefficients (added to ``P_CRR``). 1.0 and 0.0 on a track without surface
+# names (x * 1.0 and x + 0.0 are exact: those tracks run bit-identical to before surfaces).
+# Road and side columns are adjacent: the column is ``G_MU_ROAD + off`` (``off`` 0 or 1).
+G_MU_ROAD = 20
+G_MU_SIDE = 21
+G_RR_ROAD = 22
+G_RR_SIDE = 23
+N_GEOM = 24
 RAY_BLOCK = 8
 
 # --- surface (elevation and banking) columns, per track sample: ``elev[i, E_*]`` ---------------
@@ -549,7 +558,7 @@ def normal_load(p: np.ndarray, v2: float, vx: float, r: float, gn: float, kv: fl
 def physics_substep(st: np.ndarray, steer: float, cd: float, sd: float, throttle: float,
                     brake: float, p: np.ndarray, torque: np.ndarray, gears: np.ndarray,
                     on_grass: bool, dt: float, cp: float, sp: float, elev: np.ndarray,
-                    ie: int, surface: bool):
+                    ie: int, surface: bool, grip: float, rolling: float):
     """Advance one car (``st`` = its state row) by ``dt``: dynamic single-track model.
 
     Tyres: Fiala lateral force per wheel on its own load (static + aero + load transfer from the
@@ -572,6 +581,10 @@ def physics_substep(st: np.ndarray, steer: float, cd: float, sd: float, throttle
     (``E_*``; :func:`surface_normal_load` gives the normal load): gravity's in-plane component
     joins the accelerations, and the lateral one is the horizontal acceleration of the car's
     path (the in-plane force divided by cos(bank)). Without it, nothing of this is computed.
+
+    ``grip`` multiplies the car's friction (``mu`` on the road, ``mu_grass`` off it) and
+    ``rolling`` adds to its rolling-resistance coefficient: the surface under the car
+    (``G_MU_*``/``G_RR_*``), 1.0 and 0.0 on asphalt and on the default grass.
     """
     m = p[P_MASS]
     lf = p[P_LF]
@@ -579,6 +592,8 @@ def physics_substep(st: np.ndarray, steer: float, cd: float, sd: float, throttle
     half_tw = 0.5 * p[P_TW]
     inv_rw = p[P_INV_RW]
     mu = p[P_MU_GRASS] if on_grass else p[P_MU]
+    if grip != 1.0:  # (a test, not a multiply by 1.0: fastmath would re-contract around it)
+        mu *= grip
     vx = st[ST_VX]
     vy = st[ST_VY]
     r = st[ST_R]
@@ -692,7 +707,10 @@ def physics_substep(st: np.ndarray, steer: float, cd: float, sd: float, throttle
     drag = p[P_CD] * math.sqrt(v2)
     fx_body -= drag * vx
     fy_body -= drag * vy
-    fx_body -= p[P_CRR] * fz_total * _clip(vx * 2.0, -1.0, 1.0)
+    crr = p[P_CRR]
+    if rolling != 0.0:
+        crr += rolling
+    fx_body -= crr * fz_total * _clip(vx * 2.0, -1.0, 1.0)
     if on_grass:
         fx_body -= p[P_GRASS_DRAG] * vx
         fy_body -= p[P_GRASS_DRAG] * vy
@@ -911,8 +929,11 @@ def _substeps(st: np.ndarray, steer: float, cd: float, sd: float, throttle: floa
     """The physics substeps of :func:`control_step`, with projection, walls and lap timing."""
     for _ in range(n_sub):
         s_old = st[ST_S]
+        ie = int(st[ST_IDX])
+        off = 1 if st[ST_OFF] > 0.5 else 0
         cp, sp = physics_substep(st, steer, cd, sd, throttle, brake, p, torque, gears,
-                                 st[ST_OFF] > 0.5, dt, cp, sp, elev, int(st[ST_IDX]), surface)
+                                 off == 1, dt, cp, sp, elev, ie, surface,
+                                 geom[ie, G_MU_ROAD + off], geom[ie, G_RR_ROAD + off])
         _locate(st, geom, length)
         st[ST_DAMAGE] += wall_contact(st, geom, p, cfg[C_GRASS_W])
         s_new = st[ST_S]
@@ -1051,13 +1072,16 @@ def step_cars_parallel(state: np.ndarray, actions: np.ndarray, integrate: np.nda
 @njit(cache=True, fastmath=_FAST, _nrt=False)
 def integrate_free(state: np.ndarray, actions: np.ndarray, p: np.ndarray, torque: np.ndarray,
                    gears: np.ndarray, on_grass: np.ndarray, dt: float, n_sub: int,
-                   surf: np.ndarray, on_surface: np.ndarray) -> None:
+                   surf: np.ndarray, on_surface: np.ndarray, grip: np.ndarray,
+                   rolling: np.ndarray) -> None:
     """Advance N cars ``n_sub`` substeps of ``dt`` on an open plane (no track, no walls).
 
     The physics tests (top speed, cornering, braking, sliding) drive the car here, so they check
     the vehicle model alone; the env adds the track around the same ``physics_substep``. Car
     ``c`` with ``on_surface[c]`` set drives on the uniform slope, banking and vertical
-    curvature of row ``c`` of ``surf`` (``E_*`` columns) instead of the level plane.
+    curvature of row ``c`` of ``surf`` (``E_*`` columns) instead of the level plane;
+    ``grip[c]`` and ``rolling[c]`` are its surface's friction multiplier and extra rolling
+    resistance.
     """
     for c in range(state.shape[0]):
         st = state[c]
@@ -1071,12 +1095,14 @@ def integrate_free(state: np.ndarray, actions: np.ndarray, p: np.ndarray, torque
         if on_surface[c] != 0:
             for _ in range(n_sub):
                 cp, sp = physics_substep(st, steer, cd, sd, throttle, brake, p, torque, gears,
-                                         on_grass[c] != 0, dt, cp, sp, surf, c, True)
+                                         on_grass[c] != 0, dt, cp, sp, surf, c, True,
+                                         grip[c], rolling[c])
                 st[ST_TIME] += dt
         else:  # (a constant switch, as in control_step: the level plane compiles as before)
             for _ in range(n_sub):
                 cp, sp = physics_substep(st, steer, cd, sd, throttle, brake, p, torque, gears,
-                                         on_grass[c] != 0, dt, cp, sp, surf, c, False)
+                                         on_grass[c] != 0, dt, cp, sp, surf, c, False,
+                                         grip[c], rolling[c])
                 st[ST_TIME] += dt
 
 

@@ -23,12 +23,20 @@ Format (one file per track)::
     steps = 12                    # optional, with end_radius_m: TORCS' stepped spiral (below)
     z_end_m = 12.0                # optional on any segment, with z_start_m, grade_start_pct,
     banking_deg = 5.0             # grade_end_pct, banking_start_deg, banking_end_deg
+    surface = "dirt"              # optional on any segment: the road's surface (default
+    side_surface = "sand"         # "asphalt") and the side's, beyond each edge ("grass")
+    [surfaces.dirt-d2]            # optional, before the segments: a track's own surfaces
+    friction = 0.8                # (TORCS numbers: asphalt 1.2) and rolling_resistance
+    rolling_resistance = 0.03     # (asphalt 0.001), over sim.surfaces.TORCS_SURFACES
 
 Heights and banking (:func:`surface_profile`): a segment starts where the previous one ended
 (``z_start_m`` overrides; 0 for the first) and ends at ``z_end_m`` (default: level); between, the
 height is the cubic through the end heights with the end slopes ``grade_*_pct`` (default: the
 chord's, a straight ramp). Banking (> 0 raises the left edge) is linear from start to end; a
 segment without banking keys is not banked. A track without any of these keys is flat.
+
+Surfaces (:mod:`~formula_tourney.sim.surfaces`): TORCS surface names; each segment's own, not
+carried to the next. A track without surface keys drives as asphalt with grass beside it.
 
 A spiral without ``steps`` is ours: its radius is linear in the turned angle (built from ~2 m
 sub-arcs), and it is ``angle * (radius + end_radius) / 2`` long. With ``steps = N`` it is the
@@ -52,6 +60,7 @@ import numpy as np
 
 from formula_tourney.errors import UserInputError
 from formula_tourney.safeio import check_name, read_user_text
+from formula_tourney.sim.surfaces import sample_surfaces
 from formula_tourney.sim.track import LEVEL_SEPARATION_M, SAMPLE_SPACING_M, Track
 
 CLOSURE_TOLERANCE_M = 1.0
@@ -90,9 +99,13 @@ MAX_ABS_BANKING_DEG = 45.0
 SURFACE_KEYS = ("z_start_m", "z_end_m", "grade_start_pct", "grade_end_pct", "banking_deg",
                 "banking_start_deg", "banking_end_deg")
 """Optional on any segment: heights, the profile's end slopes and the banking (module doc)."""
-TOP_KEYS = ("name", "description", "width_m", "width_left_m", "width_right_m", "segment")
-STRAIGHT_KEYS = ("type", "length_m", "name", *SURFACE_KEYS)
-ARC_KEYS = ("type", "radius_m", "angle_deg", "end_radius_m", "steps", "name", *SURFACE_KEYS)
+SURFACE_NAME_KEYS = ("surface", "side_surface")
+TOP_KEYS = ("name", "description", "width_m", "width_left_m", "width_right_m", "surfaces",
+            "segment")
+MAX_SURFACES = 256
+STRAIGHT_KEYS = ("type", "length_m", "name", *SURFACE_KEYS, *SURFACE_NAME_KEYS)
+ARC_KEYS = ("type", "radius_m", "angle_deg", "end_radius_m", "steps", "name", *SURFACE_KEYS,
+            *SURFACE_NAME_KEYS)
 SEGMENT_TYPES = ("straight", "arc")
 MIN_WIDTH_M = 3.0
 MAX_WIDTH_M = 60.0
@@ -121,6 +134,10 @@ class SegmentSpec:
     banking_start_deg: float = 0.0
     """Banking at the start and end (> 0 raises the left edge), linear along the segment."""
     banking_end_deg: float = 0.0
+    surface: str = ""
+    """TORCS name of the road's surface; "" is asphalt."""
+    side_surface: str = ""
+    """TORCS name of the side's surface (beyond each edge, to the wall); "" is grass."""
 
     @property
     def has_surface(self) -> bool:
@@ -163,6 +180,10 @@ class SegmentSpec:
         else:
             out["banking_start_deg"] = self.banking_start_deg
             out["banking_end_deg"] = self.banking_end_deg
+        if self.surface:
+            out["surface"] = self.surface
+        if self.side_surface:
+            out["side_surface"] = self.side_surface
         return out
 
 
@@ -187,6 +208,8 @@ class TrackSpec:
     width_right_m: float
     segments: list[SegmentSpec] = field(default_factory=list)
     description: str = ""
+    surfaces: dict[str, tuple[float, float]] = field(default_factory=dict)
+    """The track's own surfaces: name -> (TORCS friction, rolling resistance)."""
 
     @property
     def width_m(self) -> float:
@@ -260,7 +283,8 @@ def parse_spec(
         _segment(raw, i, label, lambda key, i=i: where(key, i), left, right)
         for i, raw in enumerate(raw_segments)
     ]
-    spec = TrackSpec(name, left, right, segments, description)
+    spec = TrackSpec(name, left, right, segments, description,
+                     _surface_table(data.get("surfaces", {}), where("surfaces")))
     check_track_size(spec, label, lambda i: f"{where('type', i)}: segment {i + 1}")
     return spec
 
@@ -337,6 +361,14 @@ def _segment(
     if not isinstance(seg_name, str):
         raise UserInputError(f"{where('name')}: {head}: 'name' must be a string")
     surface = _surface_keys(raw, head, where)
+    for key in SURFACE_NAME_KEYS:
+        if key in raw:
+            value = raw[key]
+            if not isinstance(value, str) or not 0 < len(value) <= 64:
+                raise UserInputError(
+                    f"{where(key)}: {head}: {key!r} must be a surface name (a string of 1 to 64 "
+                    f"characters), got {value!r}")
+            surface[key] = value
     if kind == "straight":
         length = _number(raw, "length_m", f"{where('length_m')}: {head}", low=1e-3, high=1e5)
         return SegmentSpec("straight", length_m=length, name=seg_name, **surface)
@@ -372,6 +404,21 @@ def _segment(
         )
     return SegmentSpec("arc", radius_m=radius, angle_deg=angle, end_radius_m=end, name=seg_name,
                        steps=steps, **surface)
+
+
+def _surface_table(raw: Any, where: str) -> dict[str, tuple[float, float]]:
+    """The optional ``[surfaces]`` table: name -> {friction, rolling_resistance}."""
+    if not isinstance(raw, dict) or len(raw) > MAX_SURFACES:
+        raise UserInputError(f"{where}: 'surfaces' must be a table of at most {MAX_SURFACES} "
+                             "surfaces")
+    out = {}
+    for name, entry in raw.items():
+        head = f"{where}: surface {name!r}"
+        if not isinstance(entry, dict) or set(entry) != {"friction", "rolling_resistance"}:
+            raise UserInputError(f"{head}: give exactly friction and rolling_resistance")
+        out[name] = (_number(entry, "friction", head, low=0.0, high=10.0),
+                     _number(entry, "rolling_resistance", head, low=0.0, high=10.0))
+    return out
 
 
 def _surface_keys(raw: dict, head: str, where) -> dict[str, Any]:
@@ -446,6 +493,13 @@ def spec_to_toml(spec: TrackSpec) -> str:
     else:
         lines.append(f"width_left_m = {_toml_value(spec.width_left_m)}")
         lines.append(f"width_right_m = {_toml_value(spec.width_right_m)}")
+    used = {s.surface for s in spec.segments} | {s.side_surface for s in spec.segments}
+    for name, (friction, rolling) in spec.surfaces.items():
+        if name in used:
+            lines.append("")
+            lines.append(f"[surfaces.{_toml_value(name)}]")
+            lines.append(f"friction = {_toml_value(friction)}")
+            lines.append(f"rolling_resistance = {_toml_value(rolling)}")
     for seg in spec.segments:
         lines.append("")
         lines.append("[[segment]]")
@@ -579,6 +633,11 @@ def build_track(spec: TrackSpec, label: str, source: str = "") -> Track:
     heading = np.angle(np.exp(1j * heading))
     curvature = np.array([p.curvature_1pm for p in pieces])[which]
     z, banking = surface_profile(spec, label, pieces, starts, s, which, length)
+    seg_of = np.array([p.segment for p in pieces])[which]
+    grip = sample_surfaces([seg.surface for seg in spec.segments],
+                           [seg.side_surface for seg in spec.segments], seg_of,
+                           spec.surfaces, where=label)
+    fr, fs, rr, rs = grip if grip is not None else (None, None, None, None)
     seg_start = {}
     for idx, p in enumerate(pieces):
         seg_start.setdefault(p.segment, starts[idx])
@@ -603,6 +662,10 @@ def build_track(spec: TrackSpec, label: str, source: str = "") -> Track:
         source=source,
         z_m=z,
         banking_rad=banking,
+        friction_road=fr,
+        friction_side=fs,
+        rolling_road=rr,
+        rolling_side=rs,
     )
     overlap = find_overlap(track)
     if overlap is not None:

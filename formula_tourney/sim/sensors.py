@@ -100,10 +100,14 @@ def denormalise(obs: np.ndarray, lac: bool = False) -> dict[str, np.ndarray]:
     return out
 
 
-def track_geometry(track: Track, reference: ReferenceLine) -> np.ndarray:
+def track_geometry(track: Track, reference: ReferenceLine, grip_scale: float = 1.0,
+                   mu_over_grass: float = 1.0) -> np.ndarray:
     """Per-sample arrays the kernels read (``G_*`` columns): centreline, widths, asphalt edges,
     the reference line's offset, heading and curvature, straight runs and per-segment constants
-    (precomputed so the projection, run 20 times a step, does no division); one block."""
+    (precomputed so the projection, run 20 times a step, does no division), and the surfaces'
+    friction (times ``grip_scale``) and rolling resistance; one block. ``mu_over_grass`` is the
+    car's ``mu / mu_grass``: a named side surface's friction is relative to ``mu``, and the
+    kernel multiplies ``mu_grass`` on the side."""
     n = track.n
     g = np.zeros((n, K.N_GEOM))
     nx, ny = -np.sin(track.heading_rad), np.cos(track.heading_rad)
@@ -126,6 +130,11 @@ def track_geometry(track: Track, reference: ReferenceLine) -> np.ndarray:
     g[:, K.G_INV2] = 1.0 / np.maximum(g[:, K.G_DX] ** 2 + g[:, K.G_DY] ** 2, 1e-12)
     g[:, K.G_SLEN] = np.diff(np.append(track.s_m, track.length_m))
     block_capsules(g)
+    g[:, K.G_MU_ROAD] = track.friction_road * grip_scale
+    side = track.friction_side
+    g[:, K.G_MU_SIDE] = np.where(np.isnan(side), 1.0, side * mu_over_grass) * grip_scale
+    g[:, K.G_RR_ROAD] = track.rolling_road
+    g[:, K.G_RR_SIDE] = track.rolling_side
     return np.ascontiguousarray(g)
 
 

@@ -15,8 +15,18 @@ A TORCS track file is a ``<params>`` document; what we read is::
         </section>
 
 Like TORCS, numbers without a unit are SI (metres, radians) and the start line is the start of
-the first segment. Heights and banking are read (:func:`_heights`); borders, sides and pits are
-ignored.
+the first segment. Heights and banking are read (:func:`_heights`), and surface names
+(:func:`_surfaces`); the widths of borders, sides and pits are ignored.
+
+Surfaces as TORCS names them: the road's is the ``surface`` of ``Main Track`` (default
+``asphalt``), then of each segment, which holds for the following segments until another is
+given; the sides' are ``lside surface`` / ``rside surface`` or the ``surface`` of a ``Left Side``
+/ ``Right Side`` section, in ``Main Track`` or a segment, carried over the same way (default
+``grass``). Our side is one surface for both sides: the one of lower TORCS friction. Borders
+(curbs) are not modelled and their surfaces are not read. Every segment of the spec names its
+surfaces explicitly, and the file's own ``Surfaces`` section (friction and rolling resistance
+of its own names, over :data:`~formula_tourney.sim.surfaces.TORCS_SURFACES`) goes into the
+spec, so a TOML written from it drives the same.
 
 Heights as TORCS' loader builds them. Each segment has a height at its start and end on each
 edge. The start heights are where the previous segment ended unless ``z start`` (both edges) or
@@ -71,6 +81,8 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
+from dataclasses import replace
 from pathlib import Path
 
 from formula_tourney.errors import UserInputError
@@ -86,6 +98,7 @@ from formula_tourney.sim.segments import (
     build_track,
     check_track_size,
 )
+from formula_tourney.sim.surfaces import ROAD_DEFAULT, SIDE_DEFAULT, lookup
 from formula_tourney.sim.track import Track
 
 MAX_FILE_BYTES = 8 * 1024 * 1024
@@ -399,12 +412,73 @@ def _spec_from_root(root, label: str, name: str) -> TrackSpec:
                 f"{where}: 'type' must be str, lft or rgt, got {kind or 'nothing'!r}"
             )
     out = _heights(raw_segments, out, cuts, width, label)
+    table = _surface_table(root, label)
+    out = _surfaces(main, raw_segments, out, table)
     spec = TrackSpec(name=name, width_left_m=half, width_right_m=half, segments=out,
-                     description=f"imported from TORCS file {Path(label).name}")
+                     description=f"imported from TORCS file {Path(label).name}", surfaces=table)
     # Lengths are checked on the spec, before any lane or sample array exists (a 1e9 m
     # straight once allocated GiBs before it was refused).
     check_track_size(spec, label)
     return spec
+
+
+def _side_surface(sec, side: str) -> str | None:
+    """``lside surface`` (``side`` "l") or the ``surface`` of ``Left Side`` in ``sec``."""
+    node = _attr(sec, f"{side}side surface")
+    if node is None:
+        part = _section(sec, "Left Side" if side == "l" else "Right Side")
+        node = _attr(part, "surface") if part is not None else None
+    value = (node.get("val") or "").strip() if node is not None else ""
+    return value or None
+
+
+def _surface_table(root, label: str) -> dict[str, tuple[float, float]]:
+    """The file's own ``Surfaces`` section: name -> (friction, rolling resistance), for the
+    sections that give a friction (the shared surfaces.xml is an external entity, never read)."""
+    surfaces = _section(root, "Surfaces")
+    out: dict[str, tuple[float, float]] = {}
+    if surfaces is None:
+        return out
+    for sec in surfaces:
+        if sec.tag != "section" or not sec.get("name", "").strip():
+            continue
+        where = f"{label}: surface {sec.get('name')!r}"
+        try:
+            friction = _num(sec, "friction", COUNT_UNITS, where)
+            rolling = _num(sec, "rolling resistance", COUNT_UNITS, where, 0.0)
+        except UserInputError as err:
+            warnings.warn(f"{err}; the surface is ignored", stacklevel=2)
+            continue
+        if friction is None or not 0.0 <= friction <= 10.0:
+            continue
+        out[sec.get("name").strip()] = (friction, min(max(rolling, 0.0), 10.0))
+    return out
+
+
+def _surfaces(main, raw_segments, segs: list[SegmentSpec], table) -> list[SegmentSpec]:
+    """Each segment's road and side surface names, TORCS' carry-over applied (module doc)."""
+    def road_of(sec, current: str) -> str:
+        node = _attr(sec, "surface")
+        value = (node.get("val") or "").strip() if node is not None else ""
+        return value or current
+
+    road = road_of(main, ROAD_DEFAULT)
+    left = _side_surface(main, "l") or SIDE_DEFAULT
+    right = _side_surface(main, "r") or SIDE_DEFAULT
+    if road == ROAD_DEFAULT and left == right == SIDE_DEFAULT and not any(
+            _attr(sec, "surface") is not None or _side_surface(sec, "l")
+            or _side_surface(sec, "r") for sec in raw_segments):
+        return segs  # all defaults: the spec (and its TOML) stays as before surfaces
+    out = []
+    for sec, seg in zip(raw_segments, segs, strict=True):
+        road = road_of(sec, road)
+        left = _side_surface(sec, "l") or left
+        right = _side_surface(sec, "r") or right
+        fl = lookup(left, table, warn=False)  # (unknown names are warned once, when sampled)
+        fr = lookup(right, table, warn=False)
+        side = right if (fr or (1.0,))[0] < (fl or (1.0,))[0] else left
+        out.append(replace(seg, surface=road, side_surface=side))
+    return out
 
 
 def _heights(raw_segments, segs: list[SegmentSpec], cuts: list[tuple[float, int]], width: float,

@@ -36,6 +36,11 @@ class Track:
     ``slope_rad`` (the grade, uphill in the driving direction > 0) and
     ``vertical_curvature_1pm`` (> 0 a crest, < 0 a compression). ``x, y`` stay the horizontal
     plan and ``s`` the horizontal arc length.
+
+    Surfaces (:mod:`~formula_tourney.sim.surfaces`): ``friction_road``/``friction_side`` multiply
+    the car's asphalt ``mu`` (a NaN side is the car's own ``mu_grass``), ``rolling_road``/
+    ``rolling_side`` add to its rolling resistance; when not given, 1.0, NaN, 0.0, 0.0
+    (asphalt with grass beside it).
     """
 
     name: str
@@ -52,6 +57,10 @@ class Track:
     source: str = ""
     z_m: np.ndarray | None = None
     banking_rad: np.ndarray | None = None
+    friction_road: np.ndarray | None = None
+    friction_side: np.ndarray | None = None
+    rolling_road: np.ndarray | None = None
+    rolling_side: np.ndarray | None = None
     slope_rad: np.ndarray = field(init=False, repr=False)
     vertical_curvature_1pm: np.ndarray = field(init=False, repr=False)
 
@@ -66,6 +75,14 @@ class Track:
         object.__setattr__(self, "banking_rad", bank)
         object.__setattr__(self, "slope_rad", slope)
         object.__setattr__(self, "vertical_curvature_1pm", kv)
+        for key, default in (("friction_road", 1.0), ("friction_side", np.nan),
+                             ("rolling_road", 0.0), ("rolling_side", 0.0)):
+            value = getattr(self, key)
+            arr = np.full(n, default) if value is None else np.asarray(value, dtype=float)
+            ok = np.isnan(arr) if key == "friction_side" else np.zeros(n, dtype=bool)
+            if arr.shape != (n,) or not np.all(ok | (np.isfinite(arr) & (arr >= 0.0))):
+                raise ValueError(f"{key} needs one finite value >= 0 per sample")
+            object.__setattr__(self, key, arr)
 
     @property
     def has_surface(self) -> bool:
