@@ -47,7 +47,9 @@ class Preset(BaseModel):
 
 # Lillicrap et al.'s batch of 64 and a 40k-step exploration phase instead of the paper-scale
 # 256 / 100k: an update costs ~1/3 on one CPU thread and on `oval` WIN1 beat the follower on the
-# centre line after a median of 236 CPU-s over 4 seeds (benchmarks/time_to_beat_bot.py, 2026-12-01).
+# centre line after a median of 236 CPU-s over 4 seeds (the former time_to_beat_bot.py, 600 CPU-s
+# budget, 2026-12-01); benchmarks/time_to_competence.py at 300 CPU-s: first clean lap after a
+# median of 29 CPU-s (4 of 4 seeds), the follower beaten by 2 of 4 (247 and 301 CPU-s).
 _FAST = {"batch_size": 64, "exploration_steps": 40_000, "learning_starts": 1_000,
          "buffer_size": 200_000}  # fmt: skip
 
@@ -59,7 +61,7 @@ PRESETS: dict[str, Preset] = {
     "fast": Preset(
         name="fast",
         description="Batch 64, 40k-step exploration, 200k buffer: the settings that beat the "
-        "follower on oval's centre line in a median of 236 CPU-s (WIN1, 4 seeds).",
+        "follower on oval's centre line in a median of 236 CPU-s (WIN1, 4 seeds, 600 CPU-s each).",
         overrides=_FAST,
     ),
     "fast-demos": Preset(
