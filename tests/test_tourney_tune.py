@@ -330,7 +330,7 @@ def test_cpu_objective_study_around_a_preset_records_its_value(tmp_path: Path) -
     journal = results / "tinytune" / "optuna" / "WIN1.journal"
     trial = optuna.load_study(study_name="tinytune-WIN1",
                               storage=JournalStorage(JournalFileBackend(str(journal)))).trials[0]
-    assert trial.value == 1.0 and trial.user_attrs["cpu_s_used"] > 0.5
+    assert trial.value == 1.0 and trial.user_attrs["cpu_s_used"] >= 0.5
     assert sorted(trial.intermediate_values) == list(range(101))
     assert set(trial.intermediate_values.values()) == {1.0}
     job = results / "tinytune" / "tune" / "WIN1" / "trial-0"
