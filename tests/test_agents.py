@@ -121,9 +121,14 @@ def test_epsilon_anneals_linearly_to_zero() -> None:
     assert [linear_epsilon(s, 100) for s in (0, 25, 100, 500)] == [1.0, 0.75, 0.0, 0.0]
 
 
-@pytest.mark.parametrize("name", ["WIN4", "LSTM4", "MS3", "PER1M"])
-def test_same_seed_same_weights_after_updates(name: str) -> None:
-    cfg = get_variant(name, {**SMALL, "buffer_size": 1000})
+@pytest.mark.parametrize(
+    ("name", "extra"),
+    [("WIN4", {}), ("LSTM4", {}), ("MS3", {}), ("PER1M", {}),
+     ("TD3", {"window": 4, "n_step": 3}), ("SAC", {"window": 4, "n_step": 3})],
+)  # fmt: skip
+def test_same_seed_same_weights_after_updates(name: str, extra: dict) -> None:
+    """Every family, windows and n-step included for TD3 and SAC: same seed, same weights."""
+    cfg = get_variant(name, {**SMALL, "buffer_size": 1000, **extra})
 
     def run(seed: int) -> DDPGAgent:
         agent = DDPGAgent(cfg, D, seed=seed)
@@ -137,6 +142,8 @@ def test_same_seed_same_weights_after_updates(name: str) -> None:
         sa, sb, sc = (getattr(x, key).state_dict() for x in (a, b, c))
         assert all(torch.equal(sa[k], sb[k]) for k in sa)
         assert not all(torch.equal(sa[k], sc[k]) for k in sa)
+    window = np.random.default_rng(0).normal(size=(cfg.window, D)).astype(np.float32)
+    assert a.act(window).shape == (3,) and np.array_equal(a.act(window), b.act(window))
 
 
 def test_actor_ranges_and_lstm_critic_reads_past_actions() -> None:

@@ -265,26 +265,6 @@ def test_per_weights_and_priorities_use_the_papers_rule_on_the_first_critic(name
     assert info.critic_loss == pytest.approx(float(loss), rel=1e-5)
 
 
-@pytest.mark.parametrize("name", ["TD3", "SAC"])
-def test_same_seed_same_weights_and_windows_work(name: str) -> None:
-    cfg = get_variant(name, {**SMALL, "window": 4, "n_step": 3, "buffer_size": 1000})
-
-    def run(seed: int) -> DDPGAgent:
-        agent = DDPGAgent(cfg, D, seed=seed)
-        buf = _buffer_for(cfg, seed=seed)
-        for _ in range(6):
-            agent.update(buf.sample(cfg.batch_size), buf)
-        return agent
-
-    a, b, c = run(7), run(7), run(8)
-    for key in ("actor", "critic", "critic_target"):
-        sa, sb, sc = (getattr(x, key).state_dict() for x in (a, b, c))
-        assert all(torch.equal(sa[k], sb[k]) for k in sa)
-        assert not all(torch.equal(sa[k], sc[k]) for k in sa)
-    window = np.random.default_rng(0).normal(size=(4, D)).astype(np.float32)
-    assert a.act(window).shape == (3,) and np.array_equal(a.act(window), b.act(window))
-
-
 # --- acting and exploring -----------------------------------------------------------------------
 def test_explore_samples_for_sac_and_is_act_for_ddpg_and_td3() -> None:
     window = np.random.default_rng(0).normal(size=(1, D)).astype(np.float32)

@@ -16,35 +16,13 @@ import time
 from pathlib import Path
 
 import pytest
+from tourney_fixtures import TINY
 
 from formula_tourney.cli import main
 from formula_tourney.tourney.api import run_tournament
 from formula_tourney.tourney.runner import FAULTS_ENV
 
 REPO = Path(__file__).resolve().parents[1]
-
-TINY = """\
-name = "tiny"
-
-[defaults]
-seeds = 1
-episodes = 2
-max_steps = 30
-test_every_episodes = 2
-test_starts = 1
-test_max_steps = 30
-device = "cpu"
-
-[variants.WIN1]
-overrides = { hidden = [32, 32], batch_size = 16, learning_starts = 16 }
-[variants.MS2]
-overrides = { hidden = [32, 32], batch_size = 16, learning_starts = 16 }
-
-[[parts]]
-name = "p1"
-entrants = ENTRANTS
-train_tracks = ["oval"]
-"""
 
 # Nobody laps the oval in 6 s of driving: promotion classifies entrants by distance.
 PROMOTED = """
@@ -59,7 +37,7 @@ train_tracks = ["oval"]
 def tiny(folder: Path, entrants: str = '["WIN1", "MS2"]', more: str = PROMOTED) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / "tiny.toml"
-    path.write_text(TINY.replace("ENTRANTS", entrants) + more, encoding="utf-8")
+    path.write_text(TINY.format(entrants=entrants, p2=more), encoding="utf-8")
     return path
 
 

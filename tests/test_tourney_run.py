@@ -14,39 +14,13 @@ import time
 from pathlib import Path
 
 import pytest
+from tourney_fixtures import TINY
 
 from formula_tourney.errors import UserInputError
 from formula_tourney.tourney.api import run_tournament
 from formula_tourney.tourney.lock import RunLock
 from formula_tourney.tourney.runner import FAULTS_ENV
 from formula_tourney.tourney.store import Store
-
-# Small nets, small batches, updates from the first steps: each job is seconds, not minutes.
-TINY = """\
-name = "tiny"
-
-[defaults]
-seeds = 1
-episodes = 2
-max_steps = 30
-test_every_episodes = 2
-test_starts = 1
-test_max_steps = 30
-device = "cpu"
-
-[variants.WIN1]
-overrides = {{ hidden = [32, 32], batch_size = 16, learning_starts = 16 }}
-[variants.MS2]
-overrides = {{ hidden = [32, 32], batch_size = 16, learning_starts = 16 }}
-[variants.PER40k]
-overrides = {{ hidden = [32, 32], batch_size = 16, learning_starts = 16 }}
-
-[[parts]]
-name = "p1"
-entrants = {entrants}
-train_tracks = ["oval"]
-
-{p2}"""
 
 # Two 30-step episodes (6 s of driving) cannot lap a 2.3 km oval: nobody is promoted from p1.
 PROMOTED_P2 = """

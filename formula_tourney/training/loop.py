@@ -232,11 +232,12 @@ def train(
         )  # fmt: skip
     stopped_early = False
     epsilon = 1.0
+    samples_its_policy = not agent_cfg.uses_action_noise  # decided once, not every step
     while episode < schedule.episodes and not stopped_early:
         for car in collector.started:
             noises[car].reset()
         epsilon = linear_epsilon(env_steps, agent_cfg.exploration_steps)
-        if not agent_cfg.uses_action_noise:  # SAC explores by sampling its own policy
+        if samples_its_policy:  # SAC explores by sampling its own policy
             actions = [agent.explore(window) for window in collector.windows]
         elif cars == 1:
             actions = [noises[0](agent.act(collector.windows[0]), epsilon)[0]]
