@@ -1,7 +1,8 @@
 """formula-tourney: deep RL drivers race a car at its grip limit from telemetry alone.
 
-Importing the package registers the Gymnasium id ``FormulaRacing-v0`` (entry points are strings,
-so nothing heavy is imported until an env is made).
+Importing the package registers the Gymnasium ids ``FormulaRacing-v0`` and
+``FormulaRacingTraffic-v0`` (entry points are strings, so nothing heavy is imported until an env
+is made).
 """
 
 from __future__ import annotations
@@ -11,6 +12,14 @@ import gymnasium
 __version__ = "0.1.0"
 
 ENV_ID = "FormulaRacing-v0"
+
+TRAFFIC_ENV_ID = "FormulaRacingTraffic-v0"
+"""``race.traffic_env.TrafficEnv``: one learner among follower bots (``schedule.traffic_bots``).
+An id, not an import, so that ``training.envs`` builds it without importing ``race`` (which
+imports ``training``)."""
+
+if TRAFFIC_ENV_ID not in gymnasium.registry:
+    gymnasium.register(id=TRAFFIC_ENV_ID, entry_point="formula_tourney.race.traffic_env:TrafficEnv")
 
 if ENV_ID not in gymnasium.registry:
     gymnasium.register(

@@ -19,7 +19,8 @@ from formula_tourney.sim.env import FormulaRacingEnv
 
 TRACK = stadium()  # 400 m straights, radius 80 m, 12 m wide; length ~1302.65 m
 INFO_KEYS = {"lap_times_s", "lap_damage", "last_lap_s", "best_lap_s", "laps", "damage",
-             "distance_m", "s_m", "lateral_m", "speed_mps", "off_track", "termination"}
+             "distance_m", "s_m", "lateral_m", "speed_mps", "off_track", "termination",
+             "grip_scale"}
 
 
 def driver(obs: np.ndarray, target_mps: float = 24.0) -> np.ndarray:

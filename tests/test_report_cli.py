@@ -114,7 +114,8 @@ def test_latex_is_standalone_and_compiles(results: Path, tmp_path: Path) -> None
                        figures=False)
     tex = rep.files["tables.tex"].read_text()
     assert tex.startswith("\\documentclass")
-    assert tex.count("\\begin{table}") == tex.count("\\end{table}") == 7  # 4 parts + 3
+    # Table 1's 4 parts + Tables 2, 3, comparisons + the claims and the cost
+    assert tex.count("\\begin{table}") == tex.count("\\end{table}") == 9
     assert "\\textbf{27.07}" in tex and "\\usepackage{booktabs}" in tex
     assert (tmp_path / "table1.tex").is_file() and "\\documentclass" not in (
         tmp_path / "table1.tex").read_text()

@@ -157,3 +157,40 @@ def test_bad_demo_or_car_settings_fail_at_their_line(tmp_path: Path) -> None:
     with pytest.raises(UserInputError, match=rf"demo.toml:{line_of(path, 'lapz')}: .*lapz"):
         plan_tournament(path, tmp_path / "res")
     assert not (tmp_path / "res").exists()
+
+
+BUDGET_FILE = """\
+name = "budget-plan"
+
+[defaults]
+env_steps = 90000
+
+[variants.WIN1]
+env_steps = {win1}
+
+[[parts]]
+name = "p1"
+entrants = ["WIN1", "WIN4"]
+train_tracks = ["oval"]
+
+[[parts]]
+name = "p2"
+entrants = ["WIN4"]
+train_tracks = ["oval"]
+env_steps = 35000
+"""
+
+
+def test_env_step_budgets_resolve_variant_then_part_then_defaults(tmp_path: Path) -> None:
+    """A variant entry's budget wins over the part's, the part's over [defaults]; a bad
+    budget fails at its line before anything is written."""
+    path = tmp_path / "budget.toml"
+    path.write_text(BUDGET_FILE.format(win1=50000), encoding="utf-8")
+    _planner, planned, _root = plan_tournament(path, tmp_path / "res")
+    budgets = {(part.part.name, job.meta["variant"]): RunSpec.from_json(job.spec, job.job_id)
+               .schedule.env_steps for part in planned for job in part.jobs}  # fmt: skip
+    assert budgets == {("p1", "WIN1"): 50000, ("p1", "WIN4"): 90000, ("p2", "WIN4"): 35000}
+    path.write_text(BUDGET_FILE.format(win1=0), encoding="utf-8")
+    with pytest.raises(UserInputError, match=rf"budget.toml:{line_of(path, 'env_steps = 0')}: "):
+        plan_tournament(path, tmp_path / "res")
+    assert not (tmp_path / "res").exists()

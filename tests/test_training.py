@@ -53,9 +53,12 @@ def test_train_writes_the_job_folder_contract(tmp_path, ring_tracks) -> None:
     # distance_m is part of the contract: promotion "by_distance" reads it (issue 10, item 1)
     assert list(tests.columns) == [
         "episode", "env_steps", "track", "start_s_m", "finished", "best_lap_s", "laps", "damage",
-        "reward", "steps", "termination", "checkpoint", "distance_m",
+        "reward", "steps", "termination", "checkpoint", "distance_m", "grip_scale",
+        "reference_limit_s",
     ]  # fmt: skip
     assert list(tests.columns) == JOB_TABLES["tests"]
+    # tested at the run's own grip only: no limit computed (the part's baselines carry it)
+    assert (tests.grip_scale == 1.0).all() and tests.reference_limit_s.isna().all()
     assert (tests.distance_m > 0).all()
     # tests after episodes 2 and 3, on both train tracks, from 2 starts each
     assert len(tests) == 2 * 2 * 2 and sorted(set(tests.episode)) == [2, 3]
@@ -67,6 +70,7 @@ def test_train_writes_the_job_folder_contract(tmp_path, ring_tracks) -> None:
     laps = pd.read_parquet(job / "laps.parquet")
     assert list(laps.columns) == [
         "episode", "track", "start_s_m", "lap_index", "lap_time_s", "lap_damage", "clean",
+        "grip_scale",
     ]  # fmt: skip
     assert any(p.name.startswith("events.out.tfevents") for p in (job / "tb").iterdir())
     on_disk = json.loads((job / "summary.json").read_text())

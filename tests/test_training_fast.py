@@ -272,3 +272,31 @@ def test_demo_agent_update_takes_the_mixed_batch() -> None:
     agent = DDPGAgent(get_variant("PER40k", {"hidden": [16, 16], "batch_size": 32}), 29, 3)
     agent.update(mix.sample(32), mix.priorities(32))
     assert agent.last_priorities is not None and len(agent.last_priorities) == 24
+
+
+def test_env_step_budget_ends_the_run_at_the_first_episode_end_past_it(
+    tmp_path, ring_tracks
+) -> None:
+    """``schedule.env_steps``: the run stops at the first finished episode at or after the
+    budget (not at ``episodes``), with a last test round there; the same run without the
+    budget goes on; an unset budget is left out of the spec's JSON (old digests stay)."""
+    schedule = {"episodes": 500, "max_steps": 40, "test_every_episodes": 1000, "test_starts": 1,
+                "test_max_steps": 30}  # fmt: skip
+    spec = build_run_spec(variant="WIN1", overrides=SMALL, train_tracks=["ringA"], device="cpu",
+                          seed=3, schedule={**schedule, "env_steps": 300})  # fmt: skip
+    summary = loop.train(spec, tmp_path / "budget")
+    eps = pd.read_parquet(tmp_path / "budget" / "episodes.parquet")
+    tests = pd.read_parquet(tmp_path / "budget" / "tests.parquet")
+    assert summary["env_steps"] >= 300 and eps.env_steps.iloc[-2] < 300
+    assert summary["episodes"] == len(eps) < 500
+    assert summary["env_steps"] < 300 + 40  # one episode of max_steps at most past the budget
+    assert sorted(set(tests.episode)) == [summary["episodes"]]  # the last round, at the end
+    plain = build_run_spec(variant="WIN1", overrides=SMALL, train_tracks=["ringA"], device="cpu",
+                           seed=3, schedule={**schedule, "episodes": len(eps) + 3})  # fmt: skip
+    assert "env_steps" not in plain.to_json()["schedule"]
+    assert spec.to_json()["schedule"]["env_steps"] == 300
+    longer = loop.train(plain, tmp_path / "plain")
+    assert longer["episodes"] == len(eps) + 3
+    # same seed, same steps: the budget only decides where the run ends
+    plain_eps = pd.read_parquet(tmp_path / "plain" / "episodes.parquet")
+    assert list(plain_eps.env_steps[: len(eps)]) == list(eps.env_steps)

@@ -15,6 +15,14 @@ predicted half a control step ahead, turned into a wheel angle through the tyres
 excess slip. Pure pursuit was the first choice, but on a 15 m hairpin its steady-state corner
 cutting (about ``L^2 / 2R``) is metres; docs/lines.md lists what else was tried and why.
 
+On a track with heights, banking or surfaces both the plan (the QSS profile) and the two laws
+use the forces of ``lines.surface``: the tyres' lateral force is the path's need less the
+banking's help (without that feed-forward the lateral law's steady error on b-speedway's 15 deg
+banked straights and turns, ``g sin(bank) L^2 / v^2``, was ~1.6 m, and the car left the
+track on the low side at the first apex), the normal load follows slope, banking and crests,
+gravity along the slope is paid by the throttle or taken by the brake, and the friction is the
+surface's (times the env's ``grip_scale``).
+
 ``drive`` runs laps through ``FormulaRacingEnv`` and returns lap times, damage and a per-step
 trace (the recorded line is made from it).
 """
@@ -33,6 +41,7 @@ from formula_tourney.lines.speed_profile import (
     cornering_drag_n,
     speed_profile,
 )
+from formula_tourney.lines.surface import S_GRIP, S_ROLLING, PathSurface, surface_forces
 from formula_tourney.sim import kernels as K
 from formula_tourney.sim.car_params import GRAVITY_MPS2, CarParams
 from formula_tourney.sim.env import FormulaRacingEnv
@@ -89,6 +98,11 @@ class FollowerConfig:
     and as safe."""
     control_period_s: float = 0.2
     """Matches the env's control period (the pose is predicted half of it ahead)."""
+    compression_use: float = 0.0
+    """Share of a compression's extra normal load (vertical curvature < 0) the speed plan
+    counts on. Counting all of it put the car off alpine-2 and dirt-3 (narrow, low-friction
+    corners in a dip, entered at 0.97 of a corner speed that holds for a few metres only);
+    0 drove all 37 other torcs-data tracks clean at ~0.3 % more lap time (measured)."""
 
     def validate(self) -> FollowerConfig:
         for name, value in asdict(self).items():
@@ -121,6 +135,8 @@ class Follower:
     offsets_m: np.ndarray
     car: CarParams = field(default_factory=CarParams)
     config: FollowerConfig = field(default_factory=FollowerConfig)
+    grip_scale: float = 1.0
+    """The env's friction multiplier: the plan is made for the grip the car will have."""
 
     def __post_init__(self) -> None:
         self.config.validate()
@@ -130,7 +146,11 @@ class Follower:
                 f"line for track {self.track.name!r} must have {self.track.n} finite offsets"
             )
         self.line = ReferenceLine.from_offsets(self.track, offsets)
-        self.profile = speed_profile(self.track, offsets, self.car)
+        surface = PathSurface.of_track(self.track, self.grip_scale)
+        self._surf = None if surface is None else surface.packed()
+        self.profile = speed_profile(self.track, offsets, self.car, grip_scale=self.grip_scale)
+        planned = (None if surface is None
+                   else surface.with_compression_share(self.config.compression_use))
         model = replace(CarModel.from_car(self.car),
                         brake_lateral_cutoff=self.config.brake_lateral_cutoff,
                         brake_scale=self.config.brake_plan,
@@ -138,7 +158,7 @@ class Follower:
         # The margin is on corner speeds only: scaling the whole profile also capped the car
         # at 97% of its speed on every straight, where nothing is at risk (measured: 2/3 of the
         # gap to the limit was lost while accelerating).
-        self.plan = speed_profile(self.track, offsets, self.car, model)
+        self.plan = speed_profile(self.track, offsets, self.car, model, self.grip_scale, planned)
         self.target_mps = self.plan.speed_mps
         self._hint = -1
         self._last_steer = 0.0
@@ -171,7 +191,18 @@ class Follower:
     def target_speed_mps(self, s_m: float) -> float:
         return self._interp(self.target_mps, s_m)
 
-    def _slip_wheel_angle(self, st: CarState, v: float, k_total: float) -> float:
+    def _loads(self, i: int, speed: float, curvature_1pm: float) -> tuple[float, float, float]:
+        """``(normal load, tyre lateral force, gravity along)`` at sample ``i`` for a path of
+        this curvature at this speed; on level asphalt ``m g + c_l v^2``, ``m v^2 k``, 0."""
+        c = self.car
+        u = speed * speed
+        if self._surf is None:
+            return (c.mass_kg * GRAVITY_MPS2 + c.downforce_coef_n_per_mps2 * u,
+                    c.mass_kg * u * curvature_1pm, 0.0)
+        return surface_forces(self._surf[i], c.mass_kg, c.downforce_coef_n_per_mps2, u,
+                              curvature_1pm)
+
+    def _slip_wheel_angle(self, st: CarState, v: float, k_total: float, i: int = 0) -> float:
         """Wheel angle from the tyres' slip angles: ``wheelbase k + alpha_f - alpha_r`` for the
         front and rear shares of the wanted lateral force (Fiala curve inverted in closed form,
         load and downforce included), plus counter-steer on the rear's measured excess slip.
@@ -184,13 +215,18 @@ class Follower:
         """
         c, cfg = self.car, self.config
         wb, lf, lr = c.wheelbase_m, c.cg_to_front_m, c.cg_to_rear_m
-        normal = c.mass_kg * GRAVITY_MPS2 + c.downforce_coef_n_per_mps2 * v * v
+        if self._surf is None:
+            normal = c.mass_kg * GRAVITY_MPS2 + c.downforce_coef_n_per_mps2 * v * v
+            lateral = c.mass_kg * v * v * k_total
+            mu = c.mu
+        else:
+            normal, lateral, _ = self._loads(i, v, k_total)
+            mu = c.mu * self._surf[i, S_GRIP]
         load = normal / (c.mass_kg * GRAVITY_MPS2)
-        lateral = c.mass_kg * v * v * k_total
-        alpha_f = _fiala_slip(lateral * lr / wb, c.mu * normal * lr / wb,
+        alpha_f = _fiala_slip(lateral * lr / wb, mu * normal * lr / wb,
                               c.cornering_stiffness_front_n_per_rad * load,
                               cfg.front_force_share)
-        alpha_r = _fiala_slip(lateral * lf / wb, c.mu * normal * lf / wb,
+        alpha_r = _fiala_slip(lateral * lf / wb, mu * normal * lf / wb,
                               c.cornering_stiffness_rear_n_per_rad * load,
                               cfg.front_force_share)
         wheel = math.atan(wb * k_total) + alpha_f - alpha_r
@@ -228,7 +264,7 @@ class Follower:
         load = c.mass_kg * GRAVITY_MPS2 / (c.mass_kg * GRAVITY_MPS2
                                            + c.downforce_coef_n_per_mps2 * v * v)
         if cfg.slip_steering and v > 5.0:
-            wheel = self._slip_wheel_angle(st, v, k_total)
+            wheel = self._slip_wheel_angle(st, v, k_total, i)
         else:
             wheel = (math.atan(c.wheelbase_m * k_total)
                      + cfg.understeer_gain * self._understeer * load * v * v * k_cmd)
@@ -248,15 +284,32 @@ class Follower:
         probe = np.linspace(s, s + reach + 0.5 * v * dt + 2.0, 6)
         goal = min(self.target_speed_mps(p) for p in probe)
         a_req = (goal * goal - v * v) / (2.0 * reach)
-        normal = c.mass_kg * GRAVITY_MPS2 + c.downforce_coef_n_per_mps2 * speed * speed
-        resist = c.drag_coef_n_per_mps2 * speed * speed + c.rolling_resistance * normal
-        # Lateral force now or asked for before the next decision, whichever is largest: a
-        # full pedal held into a turn-in (or an S-bend's switch) snapped the rear (measured).
-        k_ahead = max(abs(self._interp(self.line.curvature_1pm, p_s))
-                      for p_s in (s, s + 0.5 * v * cfg.control_period_s,
-                                  s + v * cfg.control_period_s))
-        lat_force = c.mass_kg * max(v * v * abs(k_cmd), v * v * k_ahead)
-        grip = cfg.grip_use * c.mu * normal
+        ahead = [self._interp(self.line.curvature_1pm, p_s)
+                 for p_s in (s, s + 0.5 * v * cfg.control_period_s,
+                             s + v * cfg.control_period_s)]
+        if self._surf is None:
+            normal = c.mass_kg * GRAVITY_MPS2 + c.downforce_coef_n_per_mps2 * speed * speed
+            resist = c.drag_coef_n_per_mps2 * speed * speed + c.rolling_resistance * normal
+            # Lateral force now or asked for before the next decision, whichever is largest:
+            # a full pedal held into a turn-in (or an S-bend's switch) snapped the rear.
+            k_ahead = max(abs(k) for k in ahead)
+            lat_force = c.mass_kg * max(v * v * abs(k_cmd), v * v * k_ahead)
+            grip = cfg.grip_use * c.mu * normal
+            along = 0.0
+            surf_grip, rolling = 1.0, 0.0
+            normal_now, lat_now = None, c.mass_kg * v * v * abs(k_line)
+        else:
+            # The same on the surface: the tyres' share of each curvature after the banking's
+            # help, the surface's normal load, friction and rolling, and the slope's pull.
+            surf_grip = float(self._surf[i, S_GRIP])
+            rolling = float(self._surf[i, S_ROLLING])
+            normal, _, along = self._loads(i, speed, k_line)
+            resist = (c.drag_coef_n_per_mps2 * speed * speed
+                      + (c.rolling_resistance + rolling) * normal)
+            lat_force = max(abs(self._loads(i, v, k)[1]) for k in [k_cmd, *ahead])
+            grip = cfg.grip_use * c.mu * surf_grip * normal
+            normal_now = normal
+            lat_now = abs(self._loads(i, v, k_line)[1])
         throttle = brake = 0.0
         if a_req >= 0.0:
             # The rear axle carries the drive and its share of the cornering force. Its static
@@ -266,8 +319,8 @@ class Follower:
             rear = c.cg_to_front_m / (c.wheelbase_m - cfg.traction_transfer * c.mu * c.cg_height_m)
             rear_spare = cfg.traction_use * rear * math.sqrt(max(grip**2 - lat_force**2, 0.0))
             # The tyres' cornering drag must be paid too, or the car sags through long corners.
-            drag = cornering_drag_n(c, speed, c.mass_kg * v * v * abs(k_line))
-            force = min(c.mass_kg * a_req + resist + drag, rear_spare)
+            drag = cornering_drag_n(c, speed, lat_now, normal_now, surf_grip)
+            force = min(c.mass_kg * a_req + resist + drag + along, rear_spare)
             full = self._drive_force(speed)
             throttle = max(0.0, min(1.0, force / max(full, 1.0)))
         else:
@@ -275,9 +328,9 @@ class Follower:
             # must still brake (it would otherwise give up braking exactly when it must).
             # The line's curvature, not the measured yaw rate: a wobble on a straight read as
             # cornering and held the brakes off until a hairpin was out of reach (measured).
-            lat_now = c.mass_kg * v * v * abs(k_line)
-            cap = brake_force_limit_n(c, speed, lat_now, cfg.grip_use, cfg.brake_lateral_cutoff)
-            force = min(c.mass_kg * -a_req - resist, cap)
+            cap = brake_force_limit_n(c, speed, lat_now, cfg.grip_use, cfg.brake_lateral_cutoff,
+                                      normal_now, surf_grip, rolling)
+            force = min(c.mass_kg * -a_req - resist - along, cap)
             brake = max(0.0, min(1.0, force / c.max_brake_force_n))
         return steer, throttle, brake
 
@@ -326,7 +379,9 @@ def drive(
         raise UserInputError(f"laps must be >= 1, got {laps}")
     car = car or CarParams()
     cfg = (config or FollowerConfig()).validate()
-    bot = Follower(track, np.asarray(offsets, dtype=float), car, cfg)
+    grip_scale = (env_config or {}).get("grip_scale", 1.0)
+    bot = Follower(track, np.asarray(offsets, dtype=float), car, cfg,
+                   grip_scale=float(grip_scale) if isinstance(grip_scale, int | float) else 1.0)
     if max_steps is None:
         # Generous: twice the QSS time for the laps asked plus the run to the line.
         lap_steps = bot.profile.lap_time_s / cfg.control_period_s

@@ -63,6 +63,9 @@ def register(app: typer.Typer) -> None:
         reference: str = typer.Option("centre", help="Reference line: centre|recorded|mincurv."),
         lac: bool = typer.Option(False, "--lac", help="Add look-ahead curvature to observations."),
         episodes: int = typer.Option(100, help="Training episodes."),
+        env_steps: int = typer.Option(
+            None, help="Env-step budget: also stop at the first episode end at or after it."
+        ),
         seed: int = typer.Option(0, help="Random seed."),
         max_steps: int = typer.Option(1000, help="Control steps per training episode."),
         test_every: int = typer.Option(10, help="Test every N episodes (and at the end)."),
@@ -71,6 +74,10 @@ def register(app: typer.Typer) -> None:
         ),
         test_starts: int = typer.Option(3, help="Start positions per test."),
         test_max_steps: int = typer.Option(1500, help="Control steps per test episode."),
+        test_grip: list[float] = typer.Option(  # noqa: B006
+            [], "--test-grip", help="Also test at this grip scale (repeatable): train on one "
+            "grip (--env-set grip_scale=...), test on another."
+        ),
         device: str = typer.Option("auto", help="auto|cpu|cuda."),
         threads: int = typer.Option(1, help="torch threads."),
         set_: list[str] = typer.Option(  # noqa: B006
@@ -83,6 +90,10 @@ def register(app: typer.Typer) -> None:
             "paper", help="Settings preset: paper (the paper's), fast, fast-demos (beyond it)."
         ),
         cars: int = typer.Option(1, help="Cars driving into the one replay buffer."),
+        traffic_bots: int = typer.Option(
+            0, "--traffic-bots", help="Follower bots around the learner in every training "
+            "episode (opponent sensors added; beyond the paper; docs/races.md)."
+        ),
         demo_laps: int = typer.Option(
             0, "--demo-laps", help="Follower laps per train track seeding a demonstration buffer "
             "(0: no demonstrations; beyond the paper)."
@@ -102,9 +113,11 @@ def register(app: typer.Typer) -> None:
             variant=variant, overrides=_parse_sets(set_, "--set"), train_tracks=track,
             test_tracks=test_track, reference=reference, lac=lac, seed=seed, device=device,
             threads=threads, env_overrides=_parse_sets(env_set, "--env-set"),
-            schedule={"episodes": episodes, "max_steps": max_steps,
+            schedule={"episodes": episodes, "env_steps": env_steps, "max_steps": max_steps,
                       "test_every_episodes": test_every, "test_starts": test_starts,
-                      "test_max_steps": test_max_steps, "cars": cars},
+                      "test_max_steps": test_max_steps, "cars": cars,
+                      "traffic_bots": traffic_bots,
+                      "test_grip_scales": list(test_grip)},
             demos={"laps": demo_laps, "line": demo_line, "batch_fraction": demo_fraction,
                    "bc_steps": bc_steps} if demo_laps > 0 else None,
             preset=preset, source="train options",
@@ -134,6 +147,9 @@ def register(app: typer.Typer) -> None:
             None, help="Reference line (default: the one the model was trained with)."
         ),
         device: str = typer.Option("cpu", help="auto|cpu|cuda."),
+        grip: float | None = typer.Option(
+            None, "--grip", help="Grip scale to drive at (default: the run's env grip_scale)."
+        ),
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
     ) -> None:
         """Drive a checkpoint greedily (epsilon = 0) and report its laps."""
@@ -143,7 +159,8 @@ def register(app: typer.Typer) -> None:
             raise UserInputError(f"--reference {reference!r}: use centre, recorded or mincurv")
         from formula_tourney.training.evaluate import evaluate_checkpoint
 
-        result = evaluate_checkpoint(str(checkpoint), track, starts, max_steps, device, reference)
+        result = evaluate_checkpoint(str(checkpoint), track, starts, max_steps, device, reference,
+                                     grip_scale=grip)
         emit(result, as_json, _render_result(result))
 
     @app.command("variants")

@@ -36,6 +36,12 @@ def register(app: typer.Typer) -> None:
             help="Draw figures (PNG+PDF); default on for --latex, --html and with --out.")] = None,
         results: Annotated[Path, typer.Option(
             help="Folder holding tournament results.")] = Path("results"),
+        claims: Annotated[list[str] | None, typer.Option(
+            "--claims",
+            help="Claims to check: a shipped set (paper) or a claims file; repeatable. Default: "
+                 "the tournament file's [claims], else the paper's findings.")] = None,
+        no_claims: Annotated[bool, typer.Option(
+            "--no-claims", help="Leave the claims section out.")] = False,
         as_json: Annotated[bool, typer.Option(
             "--json", help="Print one JSON document (tables with CIs, problems, files).")] = False,
     ) -> None:
@@ -48,7 +54,7 @@ def register(app: typer.Typer) -> None:
         if figures or (figures is None and ({"latex", "html"} & set(chosen) or out is not None)):
             message("drawing figures (PNG and PDF); --no-figures skips them")
         built = build_report(tournament, results, part=part, out_dir=out, formats=chosen,
-                             figures=figures)
+                             figures=figures, claims=None if no_claims else (claims or []))
         if markdown and not as_json:
             for line in built.written():  # stdout is the Markdown document alone
                 message(line)

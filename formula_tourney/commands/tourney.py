@@ -74,6 +74,19 @@ def register(app: typer.Typer) -> None:
         results: Path = typer.Option(
             Path("results"), "--results", help="Results folder; the tournament goes in NAME/."
         ),
+        estimate: bool = typer.Option(
+            False, "--estimate",
+            help="Measure this machine's env steps and updates for each distinct job first and "
+            "estimate jobs, env steps, CPU-hours and wall time per part: printed with "
+            "--dry-run, else kept in the results folder for the report.",
+        ),
+        calibrate_s: float = typer.Option(
+            1.0, "--calibrate-s", min=0.2, help="--estimate: seconds measured per distinct job."
+        ),
+        cluster_cpus: int | None = typer.Option(
+            None, "--cluster-cpus", help="--estimate: also the wall time on a Ray cluster of "
+            "this many CPUs."
+        ),
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
     ) -> None:
         """Run a tournament (again: resume it). Jobs are entrant x seed x part."""
@@ -84,6 +97,8 @@ def register(app: typer.Typer) -> None:
                 file, workers=workers, executor=executor, address=address, retries=retries,
                 results_dir=results, dry_run=dry_run, retry_failed=retry_failed,
                 rebuild_index=rebuild_index, progress=None if dry_run else ProgressView(),
+                estimate=estimate, calibrate_s=calibrate_s, cluster_cpus=cluster_cpus,
+                report=message,
             )
         except KeyboardInterrupt:
             raise interrupted() from None

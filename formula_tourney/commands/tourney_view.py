@@ -14,6 +14,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from formula_tourney.commands.estimate_view import render_estimate
 from formula_tourney.commands.output import stderr_console
 
 
@@ -69,8 +70,19 @@ def render_results(console: Console, result: dict[str, Any]) -> None:
     to the train track's reference limit, and the finish rate."""
     if result.get("dry_run"):
         render_plan(console, result["plan"], result["results"])
+        if result.get("estimate"):
+            render_estimate(console, result["estimate"])
         return
     for part in result["parts"]:
+        if part.get("race") is not None:
+            race = part["race"]
+            console.print(f"[bold]{part['part']}[/bold] ({part['study']}, race): "
+                          f"{part['status']}" + (f" - {escape(part['reason'])}"
+                                                 if part.get("reason") else "")
+                          + (f"; series {race['status']}, {race['raced']}/{race['races']} "
+                             f"races of {', '.join(race['entrants'])} in {race['path']}"
+                             if race.get("path") else "; waiting for its entrants"))
+            continue
         table = Table(title=f"{part['part']} ({part['study']}): {part['status']}"
                       + (f" - {part['reason']}" if part.get("reason") else ""))
         limit = part.get("reference_limit_s")
@@ -105,6 +117,11 @@ def render_results(console: Console, result: dict[str, Any]) -> None:
         )
 
 
+
+def budget_text(env_steps: int | None) -> str:
+    """The env-step budget of a part's (first entrant's) schedule, if it has one."""
+    return "" if env_steps is None else f", at most {env_steps} env steps"
+
 def render_plan(console: Console, plan: dict[str, Any], results: str) -> None:
     """The dry-run view: one short block per part (fits a narrow terminal)."""
     console.print(f"[bold]plan of {plan['tournament']}[/bold] -> {results}/"
@@ -112,6 +129,9 @@ def render_plan(console: Console, plan: dict[str, Any], results: str) -> None:
     if plan.get("description"):
         console.print(f"  {plan['description']}")
     for part in plan["parts"]:
+        if part.get("kind") == "race":
+            _render_race_plan(console, part)
+            continue
         if "entrants" in part:
             who = f"{len(part['entrants'])} entrants ({', '.join(part['entrants'])})"
             jobs = f"= {part['jobs']} jobs"
@@ -123,13 +143,31 @@ def render_plan(console: Console, plan: dict[str, Any], results: str) -> None:
         console.print(
             f"    train {', '.join(part['train_tracks'])}; test {', '.join(part['test_tracks'])}"
             f" every {part['test_every_episodes']} episodes; "
-            f"{part['episodes']} episodes x {part['max_steps']} steps;"
+            f"{part['episodes']} episodes x {part['max_steps']} steps"
+            f"{budget_text(part.get('env_steps'))};"
             f" selection {part['selection']}"
         )
         if part.get("env_overrides"):
             console.print(f"    env {escape(json.dumps(part['env_overrides']))}")
         if part["baselines"]:
             console.print(f"    baselines {', '.join(part['baselines'])}")
+
+
+def _render_race_plan(console: Console, part: dict[str, Any]) -> None:
+    """A race part in the plan: who races (promoted entrants' best seeds, bots), how often and
+    how long: one race job once its source part has promoted."""
+    bots = part.get("race_bots") or []
+    console.print(f"[bold]{part['part']}[/bold] (study {part['study']}, race): "
+                  f"{escape('promoted from ' + str(part['promoted_from']) + ' (' + part['rule'])})"
+                  f" x setups {', '.join(part['setups'])}, each with its best seed's model"
+                  + (f", + bots {', '.join(bots)}" if bots else ""))
+    points = "-".join(f"{p:g}" for p in part.get("race_points") or [])
+    console.print(
+        f"    {part['races']} races x {part['race_laps']} laps of {part['train_tracks'][0]}; "
+        f"{part['race_start']} start, grid by {part['race_grid']} (rotated each race); "
+        f"points {points}; contact {'on' if part.get('race_contact') else 'off'}"
+        "; = 1 race job after promotion"
+    )
 
 
 def _gap(lap_s: Any, limit_s: Any) -> str:

@@ -13,7 +13,11 @@ from formula_tourney.sim.car_params import CarParams
 from formula_tourney.sim.track import Track
 
 
-def reference_limit_s(track: Track, car: CarParams | None = None) -> float:
-    """The track's reference limit: QSS lap time on the minimum-curvature line (cached)."""
+def reference_limit_s(track: Track, car: CarParams | None = None,
+                      grip_scale: float = 1.0) -> float:
+    """The track's reference limit: QSS lap time on the minimum-curvature line (cached), with
+    every surface's friction times ``grip_scale`` (the env key). The line stays the one of grip
+    1: minimum curvature is geometry, so at another grip only the speeds along it change."""
     car = car or CarParams()
-    return lap_time_s(track, reference_offsets(track, "mincurv", car), car)
+    return lap_time_s(track, reference_offsets(track, "mincurv", car), car,
+                      grip_scale=grip_scale)

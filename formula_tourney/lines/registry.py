@@ -65,6 +65,14 @@ def geometry_hash(track: Track) -> str:
     for arr in (track.x_m, track.y_m, track.width_left_m, track.width_right_m):
         h.update(np.round(np.asarray(arr, dtype=float), 4).tobytes())
     h.update(np.float64(round(track.length_m, 4)).tobytes())
+    # Heights, banking and surfaces change how the driven lines come out; hashed only where a
+    # track has them, so a level asphalt track keeps its key (and its cached lines).
+    if track.has_surface:
+        for arr in (track.z_m, track.banking_rad):
+            h.update(np.round(np.asarray(arr, dtype=float), 4).tobytes())
+    if np.any(track.friction_road != 1.0) or np.any(track.rolling_road != 0.0):
+        for arr in (track.friction_road, track.rolling_road):
+            h.update(np.round(np.asarray(arr, dtype=float), 6).tobytes())
     return h.hexdigest()[:12]
 
 

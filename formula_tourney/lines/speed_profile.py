@@ -16,6 +16,12 @@ all gears, brake force), so the limit moves when the car does. Three steps, the 
 the speed is the minimum of the three. Both passes run two laps around the closed loop so the
 profile is consistent across the start line (the speed leaving the last sample is the speed
 entering the first).
+
+On a track with heights, banking or surfaces (``lines.surface.PathSurface``) all three steps
+use the simulator's forces: gravity along the slope, the normal load of banking and vertical
+curvature, the lateral help of a banked turn, and each sample's friction and rolling
+resistance. A level asphalt track at grip 1 runs the flat arithmetic unchanged (its lap times
+are pinned by tests).
 """
 
 from __future__ import annotations
@@ -27,6 +33,14 @@ import numba
 import numpy as np
 
 from formula_tourney.errors import UserInputError
+from formula_tourney.lines.surface import (
+    N_SURFACE,
+    S_GRIP,
+    S_ROLLING,
+    PathSurface,
+    corner_speed_on_surface_mps,
+    surface_forces,
+)
 from formula_tourney.sim.car_params import GRAVITY_MPS2, CarParams
 from formula_tourney.sim.reference import ReferenceLine
 from formula_tourney.sim.track import Track
@@ -122,15 +136,22 @@ class SpeedProfile:
         return 3.6 * self.line_length_m / self.lap_time_s
 
 
-def corner_speed_mps(curvature_1pm: np.ndarray | float, car: CarParams) -> np.ndarray:
+def corner_speed_mps(curvature_1pm: np.ndarray | float, car: CarParams,
+                     surface: np.ndarray | None = None) -> np.ndarray:
     """Steady-state speed limit at a curvature, in closed form.
 
     At speed ``v`` (``u = v^2``) the tyres carry a lateral force ``m u |k|`` and a longitudinal
     force ``c_d u + c_rr N`` (to hold the speed against drag and rolling resistance) within the
     friction circle ``mu N`` with ``N = m g + c_l u``. Squaring gives a quadratic in ``u``; its
     positive root is the limit. With no drag and no rolling resistance this reduces to the
-    familiar ``v^2 = mu m g R / (m - mu c_l R)``.
+    familiar ``v^2 = mu m g R / (m - mu c_l R)``. With ``surface`` (``PathSurface.packed()``
+    rows, one per curvature) the sloped, banked, curved form of
+    ``lines.surface.corner_speed_on_surface_mps``.
     """
+    if surface is not None:
+        return corner_speed_on_surface_mps(
+            curvature_1pm, surface, car.mass_kg, car.mu, car.downforce_coef_n_per_mps2,
+            car.drag_coef_n_per_mps2, car.rolling_resistance, SPEED_CAP_MPS)
     k = np.abs(np.asarray(curvature_1pm, dtype=float))
     m, mu = car.mass_kg, car.mu
     cl, cd, crr = car.downforce_coef_n_per_mps2, car.drag_coef_n_per_mps2, car.rolling_resistance
@@ -168,7 +189,7 @@ def _axle_drag(force, f_max, stiffness):
 
 
 @numba.njit(cache=True)
-def _net_accel(v, k, sign, p, grid, step):
+def _net_accel(v, k, sign, p, grid, step, surf, idx, on_surface):
     """Longitudinal acceleration: sign=+1 full throttle, sign=-1 full brake (as a deceleration).
 
     Resistance is aero drag, rolling resistance and the *cornering drag* of the tyres: a tyre
@@ -183,19 +204,31 @@ def _net_accel(v, k, sign, p, grid, step):
     moves load forward, so the brake force is capped where the first axle reaches its grip
     (the rear, for the default car: braking harder locks it and the car spins, as measured in
     the simulator), scaled down by the share of grip cornering already uses.
+    With ``on_surface``, row ``idx`` of ``surf`` gives the normal load, the tyres' lateral
+    force and gravity along the slope (``lines.surface.surface_forces``), the friction and
+    the rolling resistance. Gravity transfers no load (as in the simulator, whose load
+    transfer comes from the tyres' and the air's forces only).
     """
     m, mu, lf, wb, h = p[_M], p[_MU], p[_LF], p[_WB], p[_H]
     lr = wb - lf
     u = v * v
-    normal = m * 9.81 + p[_CL] * u
+    crr = p[_CRR]
+    along = 0.0
+    if on_surface:
+        normal, lateral, along = surface_forces(surf[idx], m, p[_CL], u, k)
+        lateral = abs(lateral)
+        mu = mu * surf[idx, S_GRIP]
+        crr = crr + surf[idx, S_ROLLING]
+    else:
+        normal = m * 9.81 + p[_CL] * u
+        lateral = m * u * abs(k)
     grip = mu * normal
-    lateral = m * u * abs(k)
     rem = grip * grip - lateral * lateral
     rem = math.sqrt(rem) if rem > 0.0 else 0.0
     load = normal / (m * 9.81)
     cornering = (_axle_drag(lateral * lr / wb, grip * lr / wb, p[_CF] * load)
                  + _axle_drag(lateral * lf / wb, grip * lf / wb, p[_CR] * load))
-    resist = p[_CD] * u + p[_CRR] * normal + cornering
+    resist = p[_CD] * u + crr * normal + cornering
     if sign > 0:
         pos = v / step
         i = int(pos)
@@ -207,6 +240,8 @@ def _net_accel(v, k, sign, p, grid, step):
         denom = wb - mu * h
         traction = mu * (normal * lf - h * resist) / denom if denom > 0.0 else grip
         force = min(drive, rem, traction)
+        if on_surface:
+            return (force - resist - along) / m
         return (force - resist) / m
     bias, brake_max = p[_BIAS], p[_BRAKE]
     ellipse = rem / grip if grip > 0.0 else 0.0
@@ -217,11 +252,13 @@ def _net_accel(v, k, sign, p, grid, step):
     cutoff = p[_CUTOFF]
     if cutoff > 0.0 and grip > 0.0:
         force *= max(0.0, 1.0 - lateral / grip / cutoff)
+    if on_surface:
+        return (force + resist + along) / m
     return (force + resist) / m
 
 
 @numba.njit(cache=True)
-def _pass(ds, kappa, vmax, forward, closed, v_start, p, grid, step):
+def _pass(ds, kappa, vmax, forward, closed, v_start, p, grid, step, surf, on_surface):
     """One direction of the QSS method; two laps when closed so the start is consistent."""
     n = ds.shape[0]
     out = np.empty(n)
@@ -255,19 +292,25 @@ def _pass(ds, kappa, vmax, forward, closed, v_start, p, grid, step):
             sign = -1.0
         # Heun's method on u = v^2 (du/ds = 2a): exact for constant acceleration and
         # second-order accurate with drag, which the closed-form tests check.
-        a0 = _net_accel(v, kappa[i], sign, p, grid, step)
+        a0 = _net_accel(v, kappa[i], sign, p, grid, step, surf, i, on_surface)
         u_pred = max(v * v + 2.0 * a0 * seg, 0.0)
-        a1 = _net_accel(math.sqrt(u_pred), kappa[nxt], sign, p, grid, step)
+        a1 = _net_accel(math.sqrt(u_pred), kappa[nxt], sign, p, grid, step, surf, nxt,
+                        on_surface)
         u_new = max(v * v + (a0 + a1) * seg, 0.0)
         v = min(math.sqrt(u_new), vmax[nxt])
     return out
 
 
-def _run_pass(model: CarModel, ds, kappa, vmax, forward: bool, closed: bool, v_start: float):
+_NO_SURFACE = np.zeros((1, N_SURFACE))
+
+
+def _run_pass(model: CarModel, ds, kappa, vmax, forward: bool, closed: bool, v_start: float,
+              surface: np.ndarray | None = None):
     return _pass(
         np.ascontiguousarray(ds, dtype=float), np.ascontiguousarray(kappa, dtype=float),
         np.ascontiguousarray(vmax, dtype=float), forward, closed, float(v_start),
         model.packed(), model.drive_force_grid_n, _DRIVE_GRID_STEP_MPS,
+        _NO_SURFACE if surface is None else surface, surface is not None,
     )
 
 
@@ -278,9 +321,10 @@ def _segment_times(ds: np.ndarray, v_from: np.ndarray, v_to: np.ndarray) -> np.n
 
 def profile_from_geometry(
     ds_m: np.ndarray, curvature_1pm: np.ndarray, car: CarParams | None = None,
-    model: CarModel | None = None,
+    model: CarModel | None = None, surface: PathSurface | None = None,
 ) -> SpeedProfile:
-    """QSS profile of a closed line given segment lengths and curvature per sample."""
+    """QSS profile of a closed line given segment lengths and curvature per sample (and the
+    surface under each sample; None: level asphalt)."""
     car = car or CarParams()
     model = model or CarModel.from_car(car)
     ds = np.asarray(ds_m, dtype=float)
@@ -289,9 +333,13 @@ def profile_from_geometry(
         raise UserInputError("a speed profile needs matching 1-D arrays of >= 3 samples")
     if not (np.all(np.isfinite(ds)) and np.all(ds > 0) and np.all(np.isfinite(kappa))):
         raise UserInputError("a speed profile needs positive finite spacing and finite curvature")
-    vmax = corner_speed_mps(kappa, car) * model.corner_speed_scale
-    v_fwd = _run_pass(model, ds, kappa, vmax, True, True, 0.0)
-    v_bwd = _run_pass(model, ds, kappa, vmax, False, True, 0.0)
+    if surface is not None and surface.n != ds.size:
+        raise UserInputError(f"a speed profile's surface needs {ds.size} samples, "
+                             f"got {surface.n}")
+    packed = None if surface is None else surface.packed()
+    vmax = corner_speed_mps(kappa, car, packed) * model.corner_speed_scale
+    v_fwd = _run_pass(model, ds, kappa, vmax, True, True, 0.0, packed)
+    v_bwd = _run_pass(model, ds, kappa, vmax, False, True, 0.0, packed)
     speed = np.minimum(np.minimum(v_fwd, v_bwd), vmax)
     seg_t = _segment_times(ds, speed, np.roll(speed, -1))
     time = np.concatenate([[0.0], np.cumsum(seg_t)[:-1]])
@@ -302,28 +350,35 @@ def profile_from_geometry(
 
 
 def line_profile(line: ReferenceLine, car: CarParams | None = None,
-                 model: CarModel | None = None) -> SpeedProfile:
-    """QSS profile of a reference line (its own arc lengths and curvature)."""
+                 model: CarModel | None = None, grip_scale: float = 1.0,
+                 surface: PathSurface | None = None) -> SpeedProfile:
+    """QSS profile of a reference line (its own arc lengths and curvature, its track's
+    surface at ``grip_scale``, or ``surface`` when given)."""
     ds = np.hypot(np.roll(line.x_m, -1) - line.x_m, np.roll(line.y_m, -1) - line.y_m)
-    return profile_from_geometry(ds, line.curvature_1pm, car, model)
+    if surface is None:
+        surface = PathSurface.of_track(line.track, grip_scale)
+    return profile_from_geometry(ds, line.curvature_1pm, car, model, surface)
 
 
 def speed_profile(track: Track, offsets_m: np.ndarray | float = 0.0,
-                  car: CarParams | None = None, model: CarModel | None = None) -> SpeedProfile:
-    """QSS profile of the line with these lateral offsets on ``track``."""
+                  car: CarParams | None = None, model: CarModel | None = None,
+                  grip_scale: float = 1.0, surface: PathSurface | None = None) -> SpeedProfile:
+    """QSS profile of the line with these lateral offsets on ``track`` (its heights, banking
+    and surfaces included, every friction times ``grip_scale``)."""
     offsets = np.asarray(offsets_m, dtype=float)
     if offsets.ndim != 0 and offsets.shape != (track.n,):
         raise UserInputError(
             f"offsets for track {track.name!r} must have {track.n} values, got {offsets.shape}"
         )
     offsets = np.broadcast_to(offsets, (track.n,))
-    return line_profile(ReferenceLine.from_offsets(track, offsets), car, model)
+    return line_profile(ReferenceLine.from_offsets(track, offsets), car, model, grip_scale,
+                        surface)
 
 
 def lap_time_s(track: Track, offsets_m: np.ndarray | float = 0.0,
-               car: CarParams | None = None) -> float:
-    """QSS lap time of a line (seconds)."""
-    return speed_profile(track, offsets_m, car).lap_time_s
+               car: CarParams | None = None, grip_scale: float = 1.0) -> float:
+    """QSS lap time of a line (seconds) at ``grip_scale``."""
+    return speed_profile(track, offsets_m, car, grip_scale=grip_scale).lap_time_s
 
 
 def straight_run(length_m: float, car: CarParams | None = None, start_speed_mps: float = 0.0,
@@ -356,12 +411,14 @@ def top_speed_mps(car: CarParams | None = None) -> float:
     return float(speeds[negative[0]]) if negative.size else SPEED_CAP_MPS
 
 
-def cornering_drag_n(car: CarParams, speed_mps: float, lateral_force_n: float) -> float:
-    """The tyres' drag while they carry ``lateral_force_n`` (the QSS passes' rule)."""
-    normal = float(car.normal_force_n(speed_mps))
+def cornering_drag_n(car: CarParams, speed_mps: float, lateral_force_n: float,
+                     normal_n: float | None = None, grip: float = 1.0) -> float:
+    """The tyres' drag while they carry ``lateral_force_n`` (the QSS passes' rule); on a
+    surface, its normal load ``normal_n`` and friction multiplier ``grip``."""
+    normal = float(car.normal_force_n(speed_mps)) if normal_n is None else float(normal_n)
     load = normal / (car.mass_kg * GRAVITY_MPS2)
     lf, wb = car.cg_to_front_m, car.wheelbase_m
-    grip = car.mu * normal
+    grip = car.mu * normal if grip == 1.0 else car.mu * grip * normal
     return float(
         _axle_drag(lateral_force_n * (wb - lf) / wb, grip * (wb - lf) / wb,
                    car.cornering_stiffness_front_n_per_rad * load)
@@ -370,15 +427,19 @@ def cornering_drag_n(car: CarParams, speed_mps: float, lateral_force_n: float) -
 
 
 def brake_force_limit_n(car: CarParams, speed_mps: float, lateral_force_n: float = 0.0,
-                        grip_use: float = 1.0, lateral_cutoff: float = 0.0) -> float:
+                        grip_use: float = 1.0, lateral_cutoff: float = 0.0,
+                        normal_n: float | None = None, grip: float = 1.0,
+                        rolling: float = 0.0) -> float:
     """Largest total brake force before an axle saturates (the QSS backward pass's rule).
 
     The follower caps its pedal with it: beyond it the simulator's rear axle locks and the car
-    spins under braking.
+    spins under braking. On a surface: its normal load ``normal_n``, friction multiplier
+    ``grip`` and extra rolling resistance ``rolling``.
     """
-    normal = float(car.normal_force_n(speed_mps))
-    resist = float(car.drag_force_n(speed_mps)) + car.rolling_resistance * normal
-    mu = car.mu * grip_use
+    normal = float(car.normal_force_n(speed_mps)) if normal_n is None else float(normal_n)
+    crr = car.rolling_resistance if rolling == 0.0 else car.rolling_resistance + rolling
+    resist = float(car.drag_force_n(speed_mps)) + crr * normal
+    mu = car.mu * grip_use if grip == 1.0 else car.mu * grip * grip_use
     lf, wb, h, bias = car.cg_to_front_m, car.wheelbase_m, car.cg_height_m, car.brake_bias_front
     grip = mu * normal
     ellipse = math.sqrt(max(1.0 - (lateral_force_n / grip) ** 2, 0.0)) if grip > 0 else 0.0

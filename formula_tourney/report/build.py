@@ -13,12 +13,20 @@ from pathlib import Path
 from typing import Any
 
 from formula_tourney.errors import UserInputError
+from formula_tourney.report.claims import evaluate_all
+from formula_tourney.report.claims_load import resolve_claims
+from formula_tourney.report.claims_plots import make_claim_figures
+from formula_tourney.report.claims_table import claims_table
+from formula_tourney.report.cost import cost_table
+from formula_tourney.report.grip_table import grip_table
 from formula_tourney.report.html import render_page
 from formula_tourney.report.load import TournamentData, load_tournament, resolve_tournament
 from formula_tourney.report.paper_tables import Context, build_tables
 from formula_tourney.report.plots import make_figures
+from formula_tourney.report.race_table import load_race_parts, race_figures, race_table
 from formula_tourney.report.render import render_markdown, render_rich, write_latex
 from formula_tourney.report.table_model import ReportTable
+from formula_tourney.results.index import read_meta
 from formula_tourney.safeio import atomic_write_text
 
 FORMATS = ("markdown", "latex", "html")
@@ -106,15 +114,30 @@ def check_formats(formats: str | Sequence[str]) -> tuple[str, ...]:
 
 def build_report(tournament: str | None = None, results_dir: str | Path = "results",
                  part: str | None = None, out_dir: str | Path | None = None,
-                 formats: str | Sequence[str] = (), figures: bool | None = None) -> Report:
+                 formats: str | Sequence[str] = (), figures: bool | None = None,
+                 claims: Sequence[str] | None = ()) -> Report:
     """Load, tabulate and write every format in ``formats`` (any of markdown, latex, html;
     none: the terminal). ``figures`` defaults to on for LaTeX and HTML (which embed them) and
-    when an ``out_dir`` is given; files go to ``out_dir`` or ``<tournament>/report``."""
+    when an ``out_dir`` is given; files go to ``out_dir`` or ``<tournament>/report``.
+    ``claims``: shipped claim sets or claims files to check (empty: the tournament's own
+    ``[claims]``, else the paper's; None: no claims section)."""
     chosen = check_formats(formats)
     root = resolve_tournament(tournament, results_dir)
+    # claims are validated before the results are read: a bad claims file is exit 2 at once
+    declared = resolve_claims(claims, read_meta(root)) if claims is not None else None
     data = load_tournament(root, part=part)
     ctx = Context.build(data)
     tables = build_tables(ctx)
+    grips = grip_table(ctx)
+    if not grips.empty:  # only a study that tested at several grips has one
+        tables.append(grips)
+    claim_results = evaluate_all(ctx, declared[0]) if declared is not None else []
+    if declared is not None:
+        tables.append(claims_table(claim_results, declared[1]))
+    races = load_race_parts(root, part, data.problems)  # race parts' series (<part>/_races/)
+    tables.extend(race_table(item) for item in races)
+    if not data.jobs.empty:
+        tables.append(cost_table(data))
     out = Path(out_dir) if out_dir is not None else None
     embeds = {"latex", "html"} & set(chosen)
     if figures is None:
@@ -126,6 +149,8 @@ def build_report(tournament: str | None = None, results_dir: str | Path = "resul
     title = f"Tournament {data.name}" + (f", part {part}" if part else "")
     if figures and out is not None:
         report.figures = make_figures(ctx, tables, out / "figures")
+        report.figures.update(make_claim_figures(ctx, claim_results, out / "figures"))
+        report.figures.update(race_figures(races, out / "figures"))
     if "markdown" in chosen:
         report.markdown = markdown_document(title, tables, data.problems)
         if out is not None:

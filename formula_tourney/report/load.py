@@ -30,6 +30,9 @@ from formula_tourney.results.index import read_index, read_meta
 from formula_tourney.tourney.spec import Selection
 
 JOB_TABLE_NAMES = ("tests", "episodes", "laps")
+GRIP_TESTS = "grip_tests"
+"""The tests at every grip a run tested at (``schedule.test_grip_scales``); ``tests`` holds
+those at the run's own grip, which every other table and figure reads."""
 # Columns copied from the job index onto every row of a job's tables, so that one concatenated
 # frame can be grouped by part/entrant/seed without joins.
 JOB_KEYS = ["job_id", "part", "entrant", "variant", "family", "seed", "reference", "lac"]
@@ -52,6 +55,9 @@ class TournamentData:
     laps: pd.DataFrame
     general_models: pd.DataFrame = field(default_factory=lambda: pd.DataFrame(
         columns=L.INDEX_TABLES["general_models"]))
+    grip_tests: pd.DataFrame = field(default_factory=lambda: pd.DataFrame(
+        columns=L.JOB_TABLES["tests"]))
+    """Tests at every grip a run tested at, each row with its grip and the limit there."""
     configs: dict[str, dict[str, Any]] = field(default_factory=dict)
     beyond_paper: dict[str, list[str]] = field(default_factory=dict)
     """Per job, what its run adds to the paper's setup (labelled in every table)."""
@@ -201,6 +207,10 @@ def _read_job(folder: JobFolder, job_id: str, problems: list[str]
             continue
         try:
             tables[name] = folder.table(name)
+            if name == "tests":  # every grip for the per-grip tables; the own grip elsewhere
+                tables[GRIP_TESTS] = tables[name]
+            if name in ("tests", "laps"):
+                tables[name] = folder.at_own_grip(tables[name])
         except CorruptResultError as err:
             problems.append(f"{job_id}: {err}")
     return spec, beyond, tables
@@ -270,7 +280,7 @@ def load_tournament(root: str | Path, part: str | None = None) -> TournamentData
             problems.append(f"baseline {brow['bot']} on {brow['track']} ({brow['part']}): "
                             f"{brow['status']}{reason}")
 
-    frames: dict[str, list[pd.DataFrame]] = {name: [] for name in JOB_TABLE_NAMES}
+    frames: dict[str, list[pd.DataFrame]] = {name: [] for name in (*JOB_TABLE_NAMES, GRIP_TESTS)}
     configs: dict[str, dict[str, Any]] = {}
     beyond: dict[str, list[str]] = {}
     for _, job in jobs.iterrows():
@@ -297,20 +307,28 @@ def load_tournament(root: str | Path, part: str | None = None) -> TournamentData
     def concat(name: str) -> pd.DataFrame:
         parts_ = [f for f in frames[name] if not f.empty]
         if not parts_:
-            return pd.DataFrame(columns=[*L.JOB_TABLES[name], *JOB_KEYS])
+            layout = L.JOB_TABLES["tests" if name == GRIP_TESTS else name]
+            return pd.DataFrame(columns=[*layout, *JOB_KEYS])
         return pd.concat(parts_, ignore_index=True)
 
-    tests = concat("tests")
-    for col in ("best_lap_s", "damage", "episode", "start_s_m", "distance_m"):
-        tests[col] = pd.to_numeric(tests[col], errors="coerce")
-    tests["finished"] = tests["finished"].map(_bool).astype(bool)
+    def tests_frame(name: str) -> pd.DataFrame:
+        frame = concat(name)
+        for col in ("best_lap_s", "damage", "episode", "start_s_m", "distance_m", "grip_scale",
+                    "reference_limit_s"):
+            frame[col] = pd.to_numeric(frame[col], errors="coerce")
+        frame["finished"] = frame["finished"].map(_bool).astype(bool)
+        return frame
+
+    tests = tests_frame("tests")
+    grip_tests = tests_frame(GRIP_TESTS)
     episodes = concat("episodes")
     for col in ("episode", "reward", "best_lap_s", "damage", "env_steps"):
         episodes[col] = pd.to_numeric(episodes[col], errors="coerce")
     laps = concat("laps")
     return TournamentData(
         root=root, name=root.name, jobs=jobs, parts=parts, baselines=baselines, tests=tests,
-        episodes=episodes, laps=laps, general_models=general, configs=configs,
+        episodes=episodes, laps=laps, general_models=general, grip_tests=grip_tests,
+        configs=configs,
         beyond_paper=beyond,
         problems=problems, unseen_finish_rates=rates,
     )

@@ -150,7 +150,7 @@ def bot_result(baselines: pd.DataFrame, bot: str, reference: str | None, track: 
             "damage": float(clean["damage"].fillna(0).min())}
 
 
-def _fill_entry(row: dict[str, Any], group: str, st: dict[str, Any], metrics_: list[str]) -> None:
+def fill_entry(row: dict[str, Any], group: str, st: dict[str, Any], metrics_: list[str]) -> None:
     """Write one entrant cell group; DNF replaces lap times when no run finished cleanly."""
     status = st["status"]
     values = {"bLT": st["bLT"], "aLT": st["aLT"], "gap": st["gap_pct"], "IQM": st["iqm"],
@@ -235,7 +235,7 @@ def _row_keys(jobs: pd.DataFrame, beyond_paper: dict[str, list[str]]) -> dict[st
     return keys
 
 
-def _ordered_rows(jobs: pd.DataFrame, keys: dict[str, str]) -> list[tuple[str, str]]:
+def ordered_rows(jobs: pd.DataFrame, keys: dict[str, str]) -> list[tuple[str, str]]:
     """(row key, family), families in order of first appearance (the spec's order)."""
     fam_order = list(dict.fromkeys(jobs["family"].astype(str)))
     seen: dict[str, str] = {}
@@ -314,7 +314,7 @@ def table1(ctx: Context) -> ReportTable:
     table.groups = list(groups)
     table.metrics = {g: list(TABLE1_METRICS) for g in table.groups}
     rows = {key: table.add_row(key, "entrant", fam)
-            for key, fam in _ordered_rows(ctx.jobs, ctx.row_keys)}
+            for key, fam in ordered_rows(ctx.jobs, ctx.row_keys)}
     for label, grp in groups.items():
         limit = ctx.limits.get(grp["track"], math.nan)
         by_row: dict[str, list[str]] = {}
@@ -323,7 +323,7 @@ def table1(ctx: Context) -> ReportTable:
         for key, row in rows.items():
             job_ids = by_row.get(key, [])
             st = entry_stats(ctx.runs_of(job_ids, grp["track"]), len(job_ids), limit)
-            _fill_entry(row, label, st, TABLE1_METRICS)
+            fill_entry(row, label, st, TABLE1_METRICS)
             if job_ids:
                 table.records.append({
                     "group": label, "row": key, "part": grp["part"], "track": grp["track"],
@@ -390,7 +390,7 @@ def table2(ctx: Context) -> ReportTable:
             trained = [j for j in job_ids if track in train_of[j]]
             st = entry_stats(ctx.runs_of(trained, track), len(trained),
                              ctx.limits.get(track, math.nan))
-            _fill_entry(row, track, st, shown)
+            fill_entry(row, track, st, shown)
             if trained:
                 table.records.append({"row": label, "track": track, **st})
     if any(t in ctx.limits for t in tracks):
@@ -475,7 +475,7 @@ def table3(ctx: Context) -> ReportTable:
         row = table.add_row(label, "entrant")
         limit = ctx.limits.get(cfg["train"], math.nan)
         st = entry_stats(ctx.runs_of(cfg["jobs"], cfg["train"]), len(cfg["jobs"]), limit)
-        _fill_entry(row, best_group, st, ["bLT", "aLT", "gap"])
+        fill_entry(row, best_group, st, ["bLT", "aLT", "gap"])
         tested = not ctx.models.loc[ctx.models["job_id"].isin(cfg["jobs"])].empty
         rate = ctx.data.unseen_finish_rate(
             ctx.jobs.loc[ctx.jobs["job_id"].isin(cfg["jobs"]), "part"].astype(str))

@@ -8,6 +8,7 @@ would trust. Readers turn a corrupt or foreign file into :class:`CorruptResultEr
 from __future__ import annotations
 
 import json
+import shutil
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -168,20 +169,56 @@ class JobFolder:
         return data
 
     def table(self, name: str) -> pd.DataFrame:
-        """A job table; an empty frame with its columns when the job has not written it yet."""
+        """A job table, every row (tests and laps: at every test grip); an empty frame with its
+        columns when the job has not written it yet. Columns added within the layout
+        (``ADDED_COLUMNS``) that an older file lacks are filled in."""
         path = self.table_path(name)
         if not path.is_file():
             return empty_table(name)
-        return read_parquet_file(path, f"the job's {name} table", L.JOB_TABLES[name])
+        added = L.ADDED_COLUMNS.get(name, ())
+        required = [c for c in L.JOB_TABLES[name] if c not in added]
+        frame = read_parquet_file(path, f"the job's {name} table", required)
+        for col in added:
+            if col not in frame.columns:
+                frame[col] = float("nan")
+        grips = pd.to_numeric(frame["grip_scale"], errors="coerce") if "grip_scale" in added \
+            else None
+        if grips is not None and grips.isna().any():  # no grip recorded: the run's own grip
+            frame["grip_scale"] = grips.fillna(self.own_grip_scale())
+        return frame[L.JOB_TABLES[name]]
+
+    def own_grip_scale(self) -> float:
+        """The grip the run's own tests ran at: its env ``grip_scale``; the default, 1, when
+        config.json is missing or unreadable (the reader of the tables reports that file)."""
+        try:
+            env = self.config().get("env") or {}
+        except (FileNotFoundError, CorruptResultError):
+            return 1.0
+        return float(env.get("grip_scale", 1.0))
+
+    def at_own_grip(self, frame: pd.DataFrame) -> pd.DataFrame:
+        """Rows of a tests or laps table at the run's own grip: what the best lap, promotion,
+        the index and the paper's tables read (the other ``test_grip_scales`` feed the
+        per-grip tables only)."""
+        if frame.empty:
+            return frame
+        grips = pd.to_numeric(frame["grip_scale"], errors="coerce")
+        return frame.loc[grips == self.own_grip_scale()].reset_index(drop=True)
 
     def tests(self) -> pd.DataFrame:
+        """The tests at the run's own grip (:meth:`grip_tests` has every grip)."""
+        return self.at_own_grip(self.table("tests"))
+
+    def grip_tests(self) -> pd.DataFrame:
+        """Every test row, each with the grip it ran at and the reference limit at that grip."""
         return self.table("tests")
 
     def episodes(self) -> pd.DataFrame:
         return self.table("episodes")
 
     def laps(self) -> pd.DataFrame:
-        return self.table("laps")
+        """The test laps at the run's own grip."""
+        return self.at_own_grip(self.table("laps"))
 
     def trace(self, track: str) -> pd.DataFrame | None:
         """The best clean test lap's trace on ``track``, None when the job has none."""
@@ -232,11 +269,94 @@ class BaselineFolder:
         return read_parquet_file(self.trace_path, "the baseline's trace")
 
 
+class RaceFolder:
+    """A series of races: one JSON per race, ``series.json`` (written last), the standings."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+
+    @property
+    def series_path(self) -> Path:
+        return self.path / L.RACE_SERIES_FILE
+
+    @property
+    def figures_path(self) -> Path:
+        return self.path / L.RACE_FIGURES_DIR
+
+    def is_finished(self) -> bool:
+        return self.series_path.is_file()
+
+    def is_complete(self, races: int) -> bool:
+        """``series.json`` and every one of ``races`` race files are there (a deleted race file
+        makes a finished series resumable again)."""
+        return self.is_finished() and set(range(races)) <= set(self.race_numbers())
+
+    def race_numbers(self) -> list[int]:
+        """Numbers k of the race files present, in order."""
+        if not self.path.is_dir():
+            return []
+        found = (L.RACE_FILE_RE.match(f.name) for f in self.path.iterdir())
+        return sorted(int(m.group(1)) for m in found if m)
+
+    def write_race(self, k: int, doc: Mapping[str, Any]) -> Path:
+        return atomic_write_json(self.path / L.race_file_name(k), dict(doc))
+
+    def write_qualifying(self, doc: Mapping[str, Any]) -> Path:
+        return atomic_write_json(self.path / L.RACE_QUALIFYING_FILE, dict(doc))
+
+    def qualifying(self) -> dict[str, Any] | None:
+        """The kept qualifying (``L.RACE_QUALIFYING_FILE``), None when there is none."""
+        path = self.path / L.RACE_QUALIFYING_FILE
+        if not path.is_file():
+            return None
+        data = read_json_file(path, "the races' qualifying.json")
+        if not isinstance(data, dict):
+            raise CorruptResultError(f"{path}: expected a JSON object")
+        return data
+
+    def clear(self) -> None:
+        """Remove the races, qualifying, series and derived files: a series starting afresh."""
+        if self.path.exists():
+            shutil.rmtree(self.path)
+        self.path.mkdir(parents=True, exist_ok=True)
+
+    def write_series(self, series: Mapping[str, Any]) -> Path:
+        """Last: marks the series finished."""
+        return atomic_write_json(self.series_path, dict(series))
+
+    def write_standings(self, table: Mapping[str, Any], markdown: str) -> list[Path]:
+        return [atomic_write_json(self.path / L.RACE_STANDINGS_FILE, dict(table)),
+                atomic_write_text(self.path / L.RACE_STANDINGS_MD, markdown)]
+
+    def races(self) -> list[dict[str, Any]]:
+        """Every race document, in race order."""
+        found = []
+        if self.path.is_dir():
+            for f in self.path.iterdir():
+                m = L.RACE_FILE_RE.match(f.name)
+                if m:
+                    found.append((int(m.group(1)), f))
+        out = []
+        for _, f in sorted(found):
+            data = read_json_file(f, "a race result")
+            if not isinstance(data, dict) or "results" not in data:
+                raise CorruptResultError(f"{f}: not a race result")
+            out.append(data)
+        return out
+
+    def series(self) -> dict[str, Any]:
+        data = read_json_file(self.series_path, "the races' series.json")
+        if not isinstance(data, dict):
+            raise CorruptResultError(f"{self.series_path}: expected a JSON object")
+        return data
+
+
 __all__ = [
     "BaselineFolder",
     "CorruptResultError",
     "JobFolder",
     "OldSchemaError",
+    "RaceFolder",
     "empty_table",
     "read_json_file",
     "read_parquet_file",

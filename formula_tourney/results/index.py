@@ -19,7 +19,7 @@ from formula_tourney.errors import UserInputError
 from formula_tourney.results import layout as L
 from formula_tourney.results.folder import CorruptResultError
 
-OPTIONAL_TABLES = ("general_models",)
+OPTIONAL_TABLES = ("general_models", "races")
 """Tables an index may lack without that being a gap (only parts with general-model selection
 write it, and older stores did not have it)."""
 

@@ -4,8 +4,10 @@ Layout::
 
     <tournament>/index.sqlite                          the index (written by the parent only)
     <tournament>/.lock                                 held by the running ``run``
+    <tournament>/estimate.json                         the cost estimate of ``run --estimate``
     <tournament>/<part>/<entrant>/seed-<n>/            one training job (a job folder)
     <tournament>/<part>/_baselines/<bot>-<ref>-<track>/  one baseline drive
+    <tournament>/<part>/_races/                        a race part's (or `race --races`) races
     <tournament>/optuna/<variant>.journal              tune studies
 
 A job folder: ``config.json`` (schema version + run spec), ``episodes.parquet``,
@@ -20,7 +22,9 @@ import re
 
 SCHEMA_VERSION = 2
 """Version of the job-folder layout written into config.json. 1: the unversioned layout before
-the run specification (flat TrainConfig, no distance_m in tests.parquet)."""
+the run specification (flat TrainConfig, no distance_m in tests.parquet). A column added within
+a version goes to :data:`ADDED_COLUMNS`: files written before it still read (the reader fills
+it in), and older readers ignore it, so the version only moves when a column changes meaning."""
 
 CONFIG_FILE = "config.json"
 SUMMARY_FILE = "summary.json"
@@ -33,11 +37,29 @@ BEST_CHECKPOINT = "best.pt"
 LAST_CHECKPOINT = "last.pt"
 
 INDEX_FILE = "index.sqlite"
+ESTIMATE_FILE = "estimate.json"
+"""The cost estimate ``run --estimate`` measured before the tournament's first run (kept on
+resume), which the report sets against the measured cost."""
 LOCK_FILE = ".lock"
 BASELINE_DIR = "_baselines"
 BASELINE_RESULT_FILE = "result.json"
 BASELINE_TRACE_FILE = "trace.parquet"
 OPTUNA_DIR = "optuna"
+RACES_DIR = "_races"
+"""A series of races (a race part, or ``race --races N --out DIR``): ``race-<k>.json`` per race
+(``RaceResult.to_json``, k from 0), then ``series.json`` (track, settings, seed, entrants and
+their checkpoints) written last: its presence means finished. The report's outputs beside them:
+``standings.json`` and ``standings.md`` (``report.race_standings``) and
+``figures/race-<k>-positions.png`` / ``-gaps.png`` (``report.race_figures``)."""
+RACE_SERIES_FILE = "series.json"
+RACE_QUALIFYING_FILE = "qualifying.json"
+"""A tournament's race series: the qualifying laps and base grid, written before race 0 with
+the race job's config hash, so a resumed series keeps its grid and its finished races (and a
+series of other entrants or settings starts afresh)."""
+RACE_STANDINGS_FILE = "standings.json"
+RACE_STANDINGS_MD = "standings.md"
+RACE_FIGURES_DIR = "figures"
+RACE_FILE_RE = re.compile(r"^race-(\d+)\.json$")
 
 JOB_TABLES: dict[str, list[str]] = {
     "episodes": [
@@ -46,11 +68,23 @@ JOB_TABLES: dict[str, list[str]] = {
     ],
     "tests": [
         "episode", "env_steps", "track", "start_s_m", "finished", "best_lap_s", "laps", "damage",
-        "reward", "steps", "termination", "checkpoint", "distance_m",
+        "reward", "steps", "termination", "checkpoint", "distance_m", "grip_scale",
+        "reference_limit_s",
     ],
-    "laps": ["episode", "track", "start_s_m", "lap_index", "lap_time_s", "lap_damage", "clean"],
+    "laps": [
+        "episode", "track", "start_s_m", "lap_index", "lap_time_s", "lap_damage", "clean",
+        "grip_scale",
+    ],
 }  # fmt: skip
 """Columns of each job table, in order (docs/CONTRACTS.md, "training (one run)")."""
+
+ADDED_COLUMNS: dict[str, tuple[str, ...]] = {
+    "tests": ("grip_scale", "reference_limit_s"),
+    "laps": ("grip_scale",),
+}
+"""Columns added within layout 2 (issue 12, grip as an axis), which files written before them
+lack: a test then ran at its run's env ``grip_scale``, and its reference limit was not stored
+(nan). ``results.folder.JobFolder`` fills them in when it reads such a file."""
 
 TRACE_COLUMNS = [
     "time_s", "distance_m", "s_m", "lateral_m", "x_m", "y_m", "speed_kmh", "steer", "throttle",
@@ -75,6 +109,10 @@ INDEX_TABLES: dict[str, list[str]] = {
     "general_models": [
         "part", "job_id", "entrant", "seed", "episode", "checkpoint", "train_track",
         "train_lap_s", "laps", "chosen",
+    ],
+    "races": [
+        "part", "track", "races", "entrants", "status", "reason", "attempts", "path",
+        "started_at", "finished_at", "wall_s", "config_hash",
     ],
 }  # fmt: skip
 
@@ -101,6 +139,11 @@ CREATE TABLE IF NOT EXISTS general_models (
     part TEXT, job_id TEXT PRIMARY KEY, entrant TEXT, seed INTEGER, episode INTEGER,
     checkpoint TEXT, train_track TEXT, train_lap_s REAL, laps TEXT, chosen INTEGER
 );
+CREATE TABLE IF NOT EXISTS races (
+    part TEXT PRIMARY KEY, track TEXT, races INTEGER, entrants TEXT,
+    status TEXT NOT NULL DEFAULT 'pending', reason TEXT, attempts INTEGER NOT NULL DEFAULT 0,
+    path TEXT, started_at TEXT, finished_at TEXT, wall_s REAL, config_hash TEXT
+);
 """
 
 JOB_STATUSES = ("pending", "running", "done", "failed")
@@ -109,6 +152,16 @@ JOB_STATUSES = ("pending", "running", "done", "failed")
 def job_rel_path(part: str, entrant: str, seed: int) -> str:
     """Job folder relative to the tournament root; equal to the job id."""
     return f"{part}/{entrant}/seed-{seed}"
+
+
+def race_file_name(k: int) -> str:
+    """File of race ``k`` (from 0) in a races folder."""
+    return f"race-{int(k)}.json"
+
+
+def races_rel_path(part: str) -> str:
+    """A race part's races folder relative to the tournament root."""
+    return f"{part}/{RACES_DIR}"
 
 
 def baseline_rel_path(part: str, bot: str, reference: str, track: str) -> str:

@@ -98,12 +98,33 @@ def blt_alt(run_best_s: Sequence[float] | np.ndarray) -> tuple[float, float]:
     return float(laps.min()), float(laps.mean())
 
 
+def limit_ratio(lap_s: float, limit_s: float) -> float:
+    """Lap time over the reference limit ``limit_s`` (1.00 = at the limit); nan when either is
+    missing."""
+    if not (math.isfinite(lap_s) and math.isfinite(limit_s)) or limit_s <= 0:
+        return math.nan
+    return lap_s / limit_s
+
+
 def gap_pct(lap_s: float, limit_s: float) -> float:
     """How much slower than the reference limit ``limit_s`` a lap is, in percent; nan when
     either is missing."""
-    if not (math.isfinite(lap_s) and math.isfinite(limit_s)) or limit_s <= 0:
-        return math.nan
-    return 100.0 * (lap_s / limit_s - 1.0)
+    return 100.0 * (limit_ratio(lap_s, limit_s) - 1.0)
+
+
+def at_grip(tests: pd.DataFrame, grip_scale: float) -> pd.DataFrame:
+    """The test rows (``tests.parquet``, every grip) that ran at ``grip_scale``."""
+    return tests.loc[pd.to_numeric(tests["grip_scale"], errors="coerce") == grip_scale]
+
+
+def stored_limit_s(tests: pd.DataFrame, track: str, grip_scale: float) -> float:
+    """The reference limit of ``track`` at ``grip_scale`` as the jobs stored it with their tests
+    (``reference_limit_s``, computed once per job, track and grip by the trainer); nan when no
+    job stored one."""
+    rows = at_grip(tests, grip_scale)
+    vals = pd.to_numeric(rows.loc[rows["track"].astype(str) == track, "reference_limit_s"],
+                         errors="coerce").dropna()
+    return float(vals.iloc[0]) if not vals.empty else math.nan
 
 
 def run_metrics(tests: pd.DataFrame, train_track: str) -> dict[str, Any]:

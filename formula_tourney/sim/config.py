@@ -27,6 +27,7 @@ from pydantic import (
     Field,
     ValidationError,
     field_validator,
+    model_validator,
 )
 
 from formula_tourney.errors import UserInputError
@@ -61,8 +62,24 @@ Real = Annotated[float, BeforeValidator(_real)]
 Integer = Annotated[int, BeforeValidator(_integer)]
 Boolean = Annotated[bool, BeforeValidator(_boolean)]
 
+GRIP_MIN, GRIP_MAX = 0.2, 1.5
+GripScale = Annotated[Real, Field(ge=GRIP_MIN, le=GRIP_MAX)]
+"""A friction multiplier (ice ~0.3, wet ~0.6-0.8, dry 1): the one range every grip key shares."""
+
 RUN_OWNED_KEYS: tuple[str, ...] = ("track", "reference_line", "lac", "max_steps", "random_start")
 """Env keys a run specification sets from its own fields (never from env overrides)."""
+
+
+class GripDrying(BaseModel):
+    """A drying track: each episode starts at ``start`` grip, which rises linearly with the
+    distance driven to ``grip_scale`` (the dry grip) after ``over_laps`` laps and stays there."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    start: GripScale = Field(description="Grip scale at the start of every episode (wet).")
+    over_laps: Annotated[Real, Field(gt=0.0, le=1000.0)] = Field(
+        description="Laps of distance driven (since reset) until the track is dry."
+    )
 
 
 class EnvSettings(BaseModel):
@@ -113,10 +130,21 @@ class EnvSettings(BaseModel):
     grass_width_m: Real = Field(
         5.0, ge=0.0, le=100.0, description="Grass beyond each asphalt edge before the wall."
     )
-    grip_scale: Real = Field(
-        1.0, ge=0.2, le=1.5,
+    grip_scale: GripScale = Field(
+        1.0,
         description="Multiplier on every surface's friction (road and side): < 1 a slippery "
         "track, > 1 a grippy one (docs/sim.md, Surfaces).",
+    )
+    grip_scale_range: tuple[GripScale, GripScale] | None = Field(
+        None,
+        description="[lo, hi]: each episode (each car's, in a vector env) draws its grip scale "
+        "uniformly from this range with the env's seeded RNG, in place of grip_scale (leave "
+        "grip_scale at 1). None: every episode at grip_scale.",
+    )
+    grip_drying: GripDrying | None = Field(
+        None,
+        description="A drying track, {start, over_laps}: each episode's grip rises from start "
+        "to grip_scale over that many laps driven. None: no drying.",
     )
     car: dict[str, Any] = Field(
         default_factory=dict,
@@ -139,6 +167,20 @@ class EnvSettings(BaseModel):
                 f"invalid car parameters ({problems}); allowed keys: {allowed}"
             ) from None
         return dict(value)
+
+    @model_validator(mode="after")
+    def _one_grip_source(self) -> EnvSettings:
+        """An episode's grip comes from one key: a range drawn at reset, a drying schedule or
+        the fixed grip_scale; two of them would each silently override the other."""
+        if self.grip_scale_range is not None:
+            lo, hi = self.grip_scale_range
+            if lo > hi:
+                raise ValueError(f"grip_scale_range: lo {lo} above hi {hi}; give [lo, hi]")
+            if self.grip_drying is not None:
+                raise ValueError("grip_scale_range and grip_drying: set one, not both")
+            if self.grip_scale != 1.0:
+                raise ValueError("grip_scale_range replaces grip_scale: leave grip_scale at 1")
+        return self
 
     def car_params(self) -> CarParams:
         """The car these settings describe."""
@@ -265,7 +307,8 @@ def describe(err: ValidationError, model: type[BaseModel], source: str,
             )
         else:
             msg = str(item["msg"]).removeprefix("Value error, ")
-            lines.append(f"{source}: {noun} '{key}': {msg}")
+            # a check across keys (a model validator) has no location; its message names them
+            lines.append(f"{source}: {noun} '{key}': {msg}" if item["loc"] else f"{source}: {msg}")
     return "\n".join(lines)
 
 

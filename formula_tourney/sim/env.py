@@ -107,6 +107,15 @@ class _Batch:
         c[K.C_LENGTH] = self.track.length_m
         self.geom = track_geometry(self.track, self.reference, cfg.grip_scale,
                                    self.car.mu / self.car.mu_grass)
+        # Per-episode grip (docs/sim.md "Surfaces"): grip_scale lives in the geometry block (1
+        # when a range is drawn); a drawn grip or a drying track is each car's ST_GRIP_DELTA.
+        self.base_grip = cfg.grip_scale
+        self.grip_range = cfg.grip_scale_range
+        self.start_grip_delta = 0.0
+        if cfg.grip_drying is not None:
+            self.start_grip_delta = cfg.grip_drying.start / cfg.grip_scale - 1.0
+            c[K.C_DRY_M] = cfg.grip_drying.over_laps * self.track.length_m
+            c[K.C_DRY_DELTA0] = self.start_grip_delta
         # Heights and banking: read by the kernels only on a track that has them.
         c[K.C_ELEV] = 1.0 if self.track.has_surface else 0.0
         self.elev = surface_block(self.track)
@@ -187,6 +196,10 @@ class _Batch:
         x, y, h, i = self.start_pose(s)
         set_start(self.state[c], self.car, x, y, h, speed)
         self.state[c, K.ST_IDX] = i  # projection hint: a local search, not a global scan
+        if self.grip_range is not None:  # drawn after the start: no draw moves without a range
+            self.state[c, K.ST_GRIP_DELTA] = float(rng.uniform(*self.grip_range)) - 1.0
+        else:
+            self.state[c, K.ST_GRIP_DELTA] = self.start_grip_delta
         self.integrate[c] = 0
         self._clear_lap_records(np.array([c]))
 
@@ -205,11 +218,14 @@ class _Batch:
         if self._start_row is None:
             self._start_row = np.zeros(K.N_STATE)
             set_start(self._start_row, self.car, 0.0, 0.0, 0.0, self.start_speed)
+            self._start_row[K.ST_GRIP_DELTA] = self.start_grip_delta
             ref = self.reference
             self._reset_arrays = tuple(np.ascontiguousarray(a, dtype=float) for a in (
                 tr.s_m, ref.x_m, ref.y_m, ref.heading_rad))
         K.reset_rows(self.state, self.integrate, np.asarray(cars, dtype=np.int64), s,
                      self._start_row, *self._reset_arrays, float(tr.length_m))
+        if self.grip_range is not None:
+            self.state[cars, K.ST_GRIP_DELTA] = rng.uniform(*self.grip_range, size=k) - 1.0
         self._clear_lap_records(cars)
 
     def _clear_lap_records(self, cars: np.ndarray) -> None:
@@ -263,6 +279,7 @@ class _Batch:
             "speed_mps": math.hypot(st[K.ST_VX], st[K.ST_VY]),
             "off_track": st[K.ST_OFF] > 0.5,
             "termination": self.termination[c],
+            "grip_scale": self.base_grip * (1.0 + st[K.ST_GRIP_DELTA]),
         }
 
 
@@ -365,7 +382,9 @@ class FormulaRacingEnv(gymnasium.Env):
     reference_line ("centre" or offsets per sample), lac, lac_distances_m, control_period_s,
     physics_hz (>= 100), max_steps, terminate_off_track, terminate_backwards, terminate_slow,
     slow_speed_kmh, slow_patience_steps, slow_penalty, damage_weight, random_start,
-    start_speed_mps, grass_width_m, grip_scale, car (CarParams overrides).
+    start_speed_mps, grass_width_m, grip_scale, grip_scale_range (a grip drawn per episode),
+    grip_drying (a drying track), car (CarParams overrides). `info["grip_scale"]` is the
+    episode's grip now (every surface's friction multiplier).
     `reset(seed=..., options={{"start_s_m": float, "start_speed_mps": float}})`.
 
     ## Version History
@@ -441,9 +460,11 @@ class FormulaRacingEnv(gymnasium.Env):
         return _render_frame(self)
 
 
-_INFO_COLS = [K.ST_DAMAGE, K.ST_DIST, K.ST_S, K.ST_LAT, K.ST_VX, K.ST_VY, K.ST_OFF]
+_INFO_COLS = [K.ST_DAMAGE, K.ST_DIST, K.ST_S, K.ST_LAT, K.ST_VX, K.ST_VY, K.ST_OFF,
+              K.ST_GRIP_DELTA]
 _INFO_KEYS = ("lap_times_s", "lap_damage", "last_lap_s", "best_lap_s", "laps", "damage",
-              "distance_m", "s_m", "lateral_m", "speed_mps", "off_track", "termination")
+              "distance_m", "s_m", "lateral_m", "speed_mps", "off_track", "termination",
+              "grip_scale")
 
 
 class FormulaRacingVectorEnv(VectorEnv):
@@ -537,7 +558,7 @@ class FormulaRacingVectorEnv(VectorEnv):
         b = self._b
         st = b.state
         # One gather for the state columns (rows of a fresh array, contiguous), not 4 copies.
-        damage, dist, s, lat, vx, vy, off = st.T[_INFO_COLS]
+        damage, dist, s, lat, vx, vy, off, d_grip = st.T[_INFO_COLS]
         info = {
             "lap_times_s": b.lap_times.copy(),
             "lap_damage": b.lap_damage.copy(),
@@ -551,6 +572,7 @@ class FormulaRacingVectorEnv(VectorEnv):
             "speed_mps": np.hypot(vx, vy),
             "off_track": off > 0.5,
             "termination": b.termination.copy(),
+            "grip_scale": b.base_grip * (1.0 + d_grip),
         }
         mask = self._mask
         for key in _INFO_KEYS:

@@ -64,7 +64,11 @@ ST_AY = 22  # last lateral specific force, m/s^2
 ST_STEPS = 23  # control steps since reset
 ST_OFF = 24  # 1 when the car's centre is off the asphalt
 ST_STEER = 25  # last front wheel angle, rad (rendering)
-N_STATE = 26
+# This car's episode grip factor minus 1 (per-episode grip, a drying track: docs/sim.md
+# "Surfaces"), on top of the geometry block's frictions. Stored as a difference so that a
+# zero-filled row (race cars, tests) keeps the track's own grip and the multiply is skipped.
+ST_GRIP_DELTA = 26
+N_STATE = 27
 
 # --- car parameters ----------------------------------------------------------------------------
 P_MASS = 0
@@ -179,7 +183,9 @@ C_SLOW_PEN = 10
 C_LAC = 11
 C_LENGTH = 12  # track length, m
 C_ELEV = 13  # 1 when the track has heights or banking (the ``elev`` block is read)
-N_CFG = 14
+C_DRY_M = 14  # drying track: distance (m) over which the grip dries; 0 = no drying
+C_DRY_DELTA0 = 15  # drying track: ``ST_GRIP_DELTA`` at distance 0 (rises linearly to 0)
+N_CFG = 16
 
 # --- per-step outputs --------------------------------------------------------------------------
 O_REWARD = 0
@@ -928,32 +934,53 @@ def _substeps(st: np.ndarray, steer: float, cd: float, sd: float, throttle: floa
               dt: float, cp: float, sp: float, surface: bool) -> None:
     """The physics substeps of :func:`control_step`, with projection, walls and lap timing."""
     for _ in range(n_sub):
-        s_old = st[ST_S]
-        ie = int(st[ST_IDX])
-        off = 1 if st[ST_OFF] > 0.5 else 0
-        cp, sp = physics_substep(st, steer, cd, sd, throttle, brake, p, torque, gears,
-                                 off == 1, dt, cp, sp, elev, ie, surface,
-                                 geom[ie, G_MU_ROAD + off], geom[ie, G_RR_ROAD + off])
-        _locate(st, geom, length)
-        st[ST_DAMAGE] += wall_contact(st, geom, p, cfg[C_GRASS_W])
-        s_new = st[ST_S]
-        ds = s_new - s_old
-        t0 = st[ST_TIME]
-        if ds < -0.5 * length:
-            ds += length
-            frac = (length - s_old) / max(ds, 1e-12)
-            if st[ST_LAP_DEBT] > 0.0:
-                st[ST_LAP_DEBT] -= 1.0
-            else:
-                t_cross = t0 + frac * dt
-                if st[ST_LAP_START] >= 0.0:
-                    out[O_LAP_TIME] = t_cross - st[ST_LAP_START]
-                st[ST_LAP_START] = t_cross
-        elif ds > 0.5 * length:
-            ds -= length
-            st[ST_LAP_DEBT] += 1.0
-        st[ST_DIST] += ds
-        st[ST_TIME] = t0 + dt
+        cp, sp = track_substep(st, steer, cd, sd, throttle, brake, p, torque, gears, geom, elev,
+                               cfg, out, length, dt, cp, sp, surface)
+
+
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
+def track_substep(st: np.ndarray, steer: float, cd: float, sd: float, throttle: float,
+                  brake: float, p: np.ndarray, torque: np.ndarray, gears: np.ndarray,
+                  geom: np.ndarray, elev: np.ndarray, cfg: np.ndarray, out: np.ndarray,
+                  length: float, dt: float, cp: float, sp: float, surface: bool):
+    """One physics substep of one car on the track: dynamics, projection, walls, lap timing.
+
+    Its own function so that the race kernel (``sim/race_kernels.py``) can advance N cars in
+    lockstep, substep by substep, with car-car contact in between, through the same per-car
+    arithmetic as :func:`control_step` (inlined: the single-car path compiles as before).
+    Returns the carried cos/sin of the yaw.
+    """
+    s_old = st[ST_S]
+    ie = int(st[ST_IDX])
+    off = 1 if st[ST_OFF] > 0.5 else 0
+    grip = geom[ie, G_MU_ROAD + off]
+    d_grip = st[ST_GRIP_DELTA]
+    if d_grip != 0.0:  # (a test: a car at the track's grip passes the block's value unchanged)
+        grip = grip * (1.0 + d_grip)
+    cp, sp = physics_substep(st, steer, cd, sd, throttle, brake, p, torque, gears,
+                             off == 1, dt, cp, sp, elev, ie, surface,
+                             grip, geom[ie, G_RR_ROAD + off])
+    _locate(st, geom, length)
+    st[ST_DAMAGE] += wall_contact(st, geom, p, cfg[C_GRASS_W])
+    s_new = st[ST_S]
+    ds = s_new - s_old
+    t0 = st[ST_TIME]
+    if ds < -0.5 * length:
+        ds += length
+        frac = (length - s_old) / max(ds, 1e-12)
+        if st[ST_LAP_DEBT] > 0.0:
+            st[ST_LAP_DEBT] -= 1.0
+        else:
+            t_cross = t0 + frac * dt
+            if st[ST_LAP_START] >= 0.0:
+                out[O_LAP_TIME] = t_cross - st[ST_LAP_START]
+            st[ST_LAP_START] = t_cross
+    elif ds > 0.5 * length:
+        ds -= length
+        st[ST_LAP_DEBT] += 1.0
+    st[ST_DIST] += ds
+    st[ST_TIME] = t0 + dt
+    return cp, sp
 
 
 @njit(cache=True, fastmath=_FAST, _nrt=False)
@@ -980,6 +1007,10 @@ def control_step(st: np.ndarray, act: np.ndarray, p: np.ndarray, torque: np.ndar
     sd = math.sin(steer * p[P_STEER])
     cp = math.cos(st[ST_PSI])
     sp = math.sin(st[ST_PSI])
+    dry_m = cfg[C_DRY_M]
+    if dry_m > 0.0:  # a drying track: the grip rises linearly with the distance driven
+        frac = _clip(st[ST_DIST] / dry_m, 0.0, 1.0)
+        st[ST_GRIP_DELTA] = cfg[C_DRY_DELTA0] * (1.0 - frac)
     # Two copies of the substep loop, the surface switch a compile-time constant in each: the
     # level copy compiles without any of the surface code or a per-substep test, so flat
     # tracks run the flat simulator's arithmetic (bit-identical trajectories).
@@ -1014,8 +1045,19 @@ def _step_one(c: int, state: np.ndarray, actions: np.ndarray, integrate: np.ndar
     dist0 = st[ST_DIST]
     control_step(st, actions[c], p, torque, gears, geom, elev, cfg, o)
     angle = observe(st, geom, elev, cfg, lac_d, obs[c])
+    score_step(st, o, obs[c], dist0, angle, geom, cfg)
+
+
+@njit(cache=True, fastmath=_FAST, _nrt=False, inline="always")
+def score_step(st: np.ndarray, o: np.ndarray, obs_row: np.ndarray, dist0: float, angle: float,
+               geom: np.ndarray, cfg: np.ndarray) -> None:
+    """Reward, slow counter and end flags of one car after its control step and observation.
+
+    Shared by :func:`_step_one` and the race kernel, so both score a step the same way.
+    """
+    length = cfg[C_LENGTH]
     vx = st[ST_VX]
-    track_pos = obs[c, OBS_TRACKPOS]
+    track_pos = obs_row[OBS_TRACKPOS]
     reward = vx * (math.cos(angle) - abs(math.sin(angle)) - abs(track_pos))
     reward -= cfg[C_DMG_W] * o[O_DMG_INC]
     progress_mps = (st[ST_DIST] - dist0) / cfg[C_DT]

@@ -1,4 +1,5 @@
-"""Track maps with matplotlib's Agg backend: asphalt, edges, start line and driving direction.
+"""Track maps with matplotlib's Agg backend: asphalt, edges, start line and driving direction,
+and under the map of a track with heights its elevation profile (height and banking along s).
 
 Used by ``tracks show --plot``, ``tracks generate --plot`` and for the README figure. Headless
 (Agg) so it works on servers and in worker processes; written through ``safeio.atomic_write`` so
@@ -18,6 +19,14 @@ from formula_tourney.safeio import atomic_write
 from formula_tourney.sim.track import Track
 
 PLOT_SUFFIXES = (".png", ".svg", ".pdf")
+ELEVATION_MIN_RANGE_M = 0.5
+"""A track whose heights span less than this (and that has no banking) gets no profile: a
+map is all there is to see of it (the built-in three are flat)."""
+
+
+def has_elevation(track: Track) -> bool:
+    """True when heights or banking matter enough to plot a profile under the map."""
+    return bool(np.ptp(track.z_m) >= ELEVATION_MIN_RANGE_M or np.any(track.banking_rad != 0.0))
 
 
 def check_plot_path(path: str | Path) -> Path:
@@ -73,6 +82,27 @@ def draw_track(ax, track: Track) -> None:
     ax.autoscale_view()
 
 
+def draw_elevation(ax, track: Track) -> None:
+    """Height of the centreline along s (m), with the banking (deg) on a second axis when any:
+    where the map cannot show what a car climbs, drops or leans into."""
+    s = np.append(track.s_m, track.length_m)
+    z = np.append(track.z_m, track.z_m[0])
+    ax.fill_between(s, z, float(z.min()) - 0.05 * max(np.ptp(z), 1.0), color="0.8", lw=0)
+    ax.plot(s, z, color="0.15", lw=0.9)
+    ax.set_xlim(0.0, track.length_m)
+    ax.set_xlabel("s (m)", fontsize=8)
+    ax.set_ylabel("z (m)", fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.set_title(f"elevation: {np.ptp(track.z_m):.1f} m range, max grade "
+                 f"{100 * np.max(np.abs(np.tan(track.slope_rad))):.1f} %", fontsize=8)
+    if np.any(track.banking_rad != 0.0):
+        bank = ax.twinx()
+        bank.plot(s, np.degrees(np.append(track.banking_rad, track.banking_rad[0])),
+                  color="tab:blue", lw=0.8)
+        bank.set_ylabel("banking (deg)", fontsize=8, color="tab:blue")
+        bank.tick_params(labelsize=7, colors="tab:blue")
+
+
 def plot_tracks(
     tracks: Track | Sequence[Track], path: str | Path, *, columns: int | None = None,
     dpi: int = 120,
@@ -92,11 +122,24 @@ def plot_tracks(
     # Panels as tall as the tallest track needs, so wide tracks do not float in white space.
     aspect = max(float(np.ptp(t.y_m) + 40.0) / float(np.ptp(t.x_m) + 40.0) for t in items)
     panel_h = 4.6 * min(max(aspect, 0.45), 1.4) + 0.6
-    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, panel_h * rows), squeeze=False)
-    for ax in axes.flat[len(items):]:
-        ax.set_visible(False)
-    for ax, track in zip(axes.flat, items, strict=False):
-        draw_track(ax, track)
+    if not any(has_elevation(t) for t in items):
+        fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, panel_h * rows),
+                                 squeeze=False)
+        for ax in axes.flat[len(items):]:
+            ax.set_visible(False)
+        for ax, track in zip(axes.flat, items, strict=False):
+            draw_track(ax, track)
+    else:
+        # Each panel: the map, and under it a strip with the profile (a flat track's strip
+        # stays empty so that panels line up).
+        profile_h = 1.5
+        fig = plt.figure(figsize=(4.6 * cols, (panel_h + profile_h) * rows))
+        grid = fig.add_gridspec(2 * rows, cols, height_ratios=[panel_h, profile_h] * rows)
+        for k, track in enumerate(items):
+            row, col = divmod(k, cols)
+            draw_track(fig.add_subplot(grid[2 * row, col]), track)
+            if has_elevation(track):
+                draw_elevation(fig.add_subplot(grid[2 * row + 1, col]), track)
     fig.tight_layout()
     fmt = path.suffix.lstrip(".").lower()
     try:

@@ -100,12 +100,15 @@ SURFACE_KEYS = ("z_start_m", "z_end_m", "grade_start_pct", "grade_end_pct", "ban
                 "banking_start_deg", "banking_end_deg")
 """Optional on any segment: heights, the profile's end slopes and the banking (module doc)."""
 SURFACE_NAME_KEYS = ("surface", "side_surface")
+GRIP_KEY = "grip"
+"""Optional on any segment: a friction factor on its road surface (a wet patch 0.6, ice 0.2)."""
+MIN_GRIP, MAX_GRIP = 0.05, 2.0
 TOP_KEYS = ("name", "description", "width_m", "width_left_m", "width_right_m", "surfaces",
             "segment")
 MAX_SURFACES = 256
-STRAIGHT_KEYS = ("type", "length_m", "name", *SURFACE_KEYS, *SURFACE_NAME_KEYS)
+STRAIGHT_KEYS = ("type", "length_m", "name", *SURFACE_KEYS, *SURFACE_NAME_KEYS, GRIP_KEY)
 ARC_KEYS = ("type", "radius_m", "angle_deg", "end_radius_m", "steps", "name", *SURFACE_KEYS,
-            *SURFACE_NAME_KEYS)
+            *SURFACE_NAME_KEYS, GRIP_KEY)
 SEGMENT_TYPES = ("straight", "arc")
 MIN_WIDTH_M = 3.0
 MAX_WIDTH_M = 60.0
@@ -138,6 +141,8 @@ class SegmentSpec:
     """TORCS name of the road's surface; "" is asphalt."""
     side_surface: str = ""
     """TORCS name of the side's surface (beyond each edge, to the wall); "" is grass."""
+    grip: float = 1.0
+    """Friction factor on this segment's road surface (a wet patch, ice); 1 unchanged."""
 
     @property
     def has_surface(self) -> bool:
@@ -184,6 +189,8 @@ class SegmentSpec:
             out["surface"] = self.surface
         if self.side_surface:
             out["side_surface"] = self.side_surface
+        if self.grip != 1.0:
+            out["grip"] = self.grip
         return out
 
 
@@ -369,6 +376,9 @@ def _segment(
                     f"{where(key)}: {head}: {key!r} must be a surface name (a string of 1 to 64 "
                     f"characters), got {value!r}")
             surface[key] = value
+    if GRIP_KEY in raw:
+        surface["grip"] = _number(raw, GRIP_KEY, f"{where(GRIP_KEY)}: {head}", low=MIN_GRIP,
+                                  high=MAX_GRIP)
     if kind == "straight":
         length = _number(raw, "length_m", f"{where('length_m')}: {head}", low=1e-3, high=1e5)
         return SegmentSpec("straight", length_m=length, name=seg_name, **surface)
@@ -638,6 +648,14 @@ def build_track(spec: TrackSpec, label: str, source: str = "") -> Track:
                            [seg.side_surface for seg in spec.segments], seg_of,
                            spec.surfaces, where=label)
     fr, fs, rr, rs = grip if grip is not None else (None, None, None, None)
+    factors = np.array([seg.grip for seg in spec.segments], dtype=float)
+    if np.any(factors != 1.0):
+        # A section's grip factor scales its road friction (the surface's, or asphalt's 1.0).
+        n_samples = len(seg_of)
+        fr = (np.ones(n_samples) if fr is None else fr) * factors[seg_of]
+        fs = np.full(n_samples, np.nan) if fs is None else fs
+        rr = np.zeros(n_samples) if rr is None else rr
+        rs = np.zeros(n_samples) if rs is None else rs
     seg_start = {}
     for idx, p in enumerate(pieces):
         seg_start.setdefault(p.segment, starts[idx])

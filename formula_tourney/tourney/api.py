@@ -15,10 +15,13 @@ from pathlib import Path
 from typing import Any
 
 from formula_tourney.errors import UserInputError
+from formula_tourney.results.layout import ESTIMATE_FILE
+from formula_tourney.safeio import atomic_write_json
 from formula_tourney.tourney.collect import collect_results
 from formula_tourney.tourney.executors import Event, default_workers, make_executor
 from formula_tourney.tourney.lock import RunLock
 from formula_tourney.tourney.plan import PlannedPart, Planner, possible_variants
+from formula_tourney.tourney.race_part import race_job
 from formula_tourney.tourney.scheduler import RunProgress, Scheduler
 from formula_tourney.tourney.spec import error_at, load_spec
 from formula_tourney.tourney.store import Store
@@ -55,6 +58,10 @@ def run_tournament(
     rebuild_index: bool = False,
     progress: RunProgress | None = None,
     on_event: Callable[[Event], None] | None = None,
+    estimate: bool = False,
+    calibrate_s: float = 1.0,
+    cluster_cpus: int | None = None,
+    report: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Run (or resume) the tournament in ``path``; return the results as plain data.
 
@@ -63,21 +70,38 @@ def run_tournament(
     moves the index aside and rebuilds it from the job folders. ``progress`` receives the
     scheduler's progress; ``on_event`` sees every executor event (tests and benchmarks).
     KeyboardInterrupt stops the workers, leaves finished jobs recorded and propagates.
+    ``estimate`` measures this machine's rates (``calibrate_s`` per distinct job) and adds the
+    cost estimate (``tourney.estimate``; ``cluster_cpus``: also for a Ray cluster that size):
+    to the dry run's result, or, for a run, to ``estimate.json`` in the results folder when the
+    tournament has none yet (a resume keeps the first). ``report`` hears its progress lines.
     """
     if retries < 0:
         raise UserInputError(f"--retries must be >= 0, got {retries}")
     if workers is not None and workers < 1:
         raise UserInputError(f"--workers must be >= 1, got {workers}")
+    if cluster_cpus is not None and cluster_cpus < 1:
+        raise UserInputError(f"--cluster-cpus must be >= 1, got {cluster_cpus}")
     planner, planned, root = plan_tournament(path, results_dir)
+    slots = workers or default_workers()
+    cost = None
+    if estimate and (dry_run or not (root / ESTIMATE_FILE).is_file()):
+        # torch and the env kernels: only when asked (and the import is what a worker pays,
+        # which the estimate measures)
+        from formula_tourney.tourney.estimate_plan import estimate_plan
+
+        cost = estimate_plan(planner, planned, slots, cluster_cpus, calibrate_s, report).to_json()
     if dry_run:
-        return {"dry_run": True, "results": str(root), "plan": planner.describe(planned)}
-    pool = make_executor(executor, workers or default_workers(), address)
+        out = {"dry_run": True, "results": str(root), "plan": planner.describe(planned)}
+        return out if cost is None else {**out, "estimate": cost}
+    pool = make_executor(executor, slots, address)
     with RunLock(root):
+        if cost is not None:
+            atomic_write_json(root / ESTIMATE_FILE, cost)
         store = Store(root)
         moved = store.move_aside() if rebuild_index else None
         if store.exists():
             store.check()
-            _check_unchanged(store, planner, planned)
+            _check_unchanged(store, planner, planned, retry_failed)
         scheduler = Scheduler(planner, planned, store, retries, retry_failed, on_event,
                               progress)
         started = time.perf_counter()
@@ -100,10 +124,17 @@ def run_tournament(
     return result
 
 
-def _check_unchanged(store: Store, planner: Planner, planned: list[PlannedPart]) -> None:
+def _check_unchanged(store: Store, planner: Planner, planned: list[PlannedPart],
+                     retry_failed: bool = False) -> None:
     """Refuse to resume when a job that already ran would now get a different run spec
-    (promoted parts: the jobs of the variants the index holds for them)."""
+    (promoted parts: the jobs of the variants the index holds for them), or a race part that
+    raced would race other entrants or settings (``retry_failed`` may re-promote: a new
+    series is then expected)."""
     for item in planned:
+        if item.part.kind == "race":
+            if not retry_failed:
+                _check_race_unchanged(store, planner, item)
+            continue
         jobs = item.jobs
         if item.variants is None:
             held = {r["variant"] for r in store.job_rows(item.part.name)}
@@ -117,3 +148,17 @@ def _check_unchanged(store: Store, planner: Planner, planned: list[PlannedPart])
                 raise error_at(planner.path, planner.text, ("parts", item.position),
                                f"{job.job_id} already ran in {store.root} with other settings; "
                                "use a new tournament name or --results DIR to start afresh")
+
+
+def _check_race_unchanged(store: Store, planner: Planner, item: PlannedPart) -> None:
+    row = store.race(item.part.name)
+    source = store.part(str(item.part.promoted_from)) or {}
+    variants = (source.get("promoted") or {}).get(item.part.name)
+    if row is None or variants is None or row["status"] != "done":
+        return
+    job = race_job(planner, item.position, store, list(variants))
+    if row["config_hash"] != job.config_hash:
+        raise error_at(planner.path, planner.text, ("parts", item.position),
+                       f"{job.job_id} already raced in {store.root} with other entrants or "
+                       "race settings; use a new tournament name or --results DIR to start "
+                       "afresh")

@@ -3,7 +3,8 @@
 The plan makes jobs, the scheduler queues them, an executor ships them to a worker process or a
 Ray task, and ``tourney.runner`` runs them. A training job carries its run specification as JSON
 (``training.spec.RunSpec.to_json()``), built and validated once in the parent; the worker only
-reads it back. A baseline job carries the bot, line, track and laps of its drive.
+reads it back. A baseline job carries the bot, line, track and laps of its drive; a race job
+the whole series of a race part (its racing models chosen in the parent from the index).
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-JobKind = Literal["train", "baseline"]
+JobKind = Literal["train", "baseline", "race"]
 
 
 @dataclass(frozen=True)
@@ -19,13 +20,15 @@ class Job:
     """One unit of work, sent to a worker process or a Ray task."""
 
     job_id: str
-    """``<part>/<entrant>/seed-<n>`` (train) or the baseline folder (both relative paths)."""
+    """``<part>/<entrant>/seed-<n>`` (train), the baseline folder or ``<part>/_races`` (race);
+    relative paths."""
     kind: JobKind
     part: str
     out_dir: str
     """Absolute folder the job writes."""
     spec: dict[str, Any] = field(default_factory=dict)
-    """Train: the RunSpec as JSON. Baseline: bot, reference, track, laps."""
+    """Train: the RunSpec as JSON. Baseline: bot, reference, track, laps. Race: a race part's
+    series (``tourney.race_part.race_job``: track, races, seed, points, settings, models, bots)."""
     config_hash: str = ""
     """Train: ``RunSpec.digest()``, compared on resume to tell a changed tournament file."""
     meta: dict[str, Any] = field(default_factory=dict)
@@ -35,7 +38,10 @@ class Job:
 
     @property
     def episodes(self) -> int:
-        """Training episodes of a train job (progress totals); 2 steps for a baseline drive."""
+        """Progress total: training episodes of a train job, the races of a race series, 2
+        steps for a baseline drive."""
+        if self.kind == "race":
+            return int(self.spec.get("races") or 1)
         if self.kind != "train":
             return 2
         return int(self.spec.get("schedule", {}).get("episodes") or 1)

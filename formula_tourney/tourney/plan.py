@@ -63,14 +63,14 @@ def resolve_variant(spec: Tournament, name: str) -> tuple[str, str, dict[str, An
 
 
 def variant_run_settings(spec: Tournament, name: str) -> dict[str, Any]:
-    """Run settings a declared variant entry sets itself (demos, cars, preset); the nearest entry in
-    its base chain wins, and they win over the part's."""
+    """Run settings a declared variant entry sets itself (demos, cars, env_steps, preset); the
+    nearest entry in its base chain wins, and they win over the part's."""
     out: dict[str, Any] = {}
     current, seen = name, set()
     while current in spec.variants and current not in seen:
         seen.add(current)
         entry = spec.variants[current]
-        for key in ("demos", "cars", "preset"):
+        for key in ("demos", "cars", "env_steps", "preset"):
             if key not in out and getattr(entry, key) is not None:
                 out[key] = getattr(entry, key)
         if entry.base is None or entry.base == current:
@@ -193,6 +193,10 @@ class Planner:
     def jobs(self, index: int, variants: list[str]) -> list[Job]:
         """Jobs of a part for the given variants: variant x setup x seed, in that order."""
         part = self.spec.parts[index]
+        if part.kind == "race":
+            # A race part trains nothing: promotion names its entrants, whose models then race
+            # in the part's one race job (tourney.race_part.race_job, made by the scheduler).
+            return []
         seeds = self.spec.settings(part)["seeds"] or 1
         out = []
         for variant in variants:
@@ -303,12 +307,19 @@ class Planner:
                 "train_tracks": list(part.train_tracks),
                 "test_tracks": part.all_test_tracks(),
                 "seeds": seeds,
-                **{k: schedule.get(k) for k in ("episodes", "max_steps", "test_every_episodes",
-                                                "test_starts", "test_max_steps")},
+                **{k: schedule.get(k) for k in ("episodes", "env_steps", "max_steps",
+                                                "test_every_episodes", "test_starts",
+                                                "test_max_steps", "test_grip_scales")},
                 "env_overrides": run.env.overrides() if run is not None else {},
                 "selection": part.selection.kind,
-                "jobs": n_jobs,
-                "jobs_per_entrant": seeds * len(part.setups),
+                "kind": part.kind,
+                **({"races": part.race.races, "race_laps": part.race.laps,
+                    "race_bots": list(part.race.bots), "race_start": part.race.start,
+                    "race_grid": part.race.grid, "race_points": list(part.race.points),
+                    "race_contact": part.race.contact.enabled}
+                   if part.race is not None else {}),
+                "jobs": 0 if part.kind == "race" else n_jobs,
+                "jobs_per_entrant": 0 if part.kind == "race" else seeds * len(part.setups),
                 "baselines": [f"{b.spec['bot']}:{b.spec['reference']}@{b.spec['track']}"
                               for b in item.baselines],
             })  # fmt: skip

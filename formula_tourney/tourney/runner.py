@@ -1,10 +1,11 @@
-"""One job, in whatever process runs it: a training run or a baseline drive into its own folder.
+"""One job, in whatever process runs it: a training run, a baseline drive or a race part's series.
 
 Called by both executors (a spawned worker process or a Ray task) with a plain :class:`Job`.
 A training job is ``training.loop.train`` on the job's run specification, read back from its
 JSON as the parent built it (nothing is re-validated or re-defaulted here); the trainer writes
 the job folder, ``summary.json`` last. A baseline job is ``bots.baselines.bot_report``: the
-follower bot on a reference line, with the track's reference limit.
+follower bot on a reference line, with the track's reference limit. A race job is
+``tourney.race_worker.run_race_job``: it keeps its finished races, unlike the others' folders.
 """
 
 from __future__ import annotations
@@ -45,6 +46,11 @@ def run_job(job: Job, progress: Progress | None = None) -> dict[str, Any]:
         return _run_train(job, progress)
     if job.kind == "baseline":
         return _run_baseline(job, progress)
+    if job.kind == "race":
+        # the races load checkpoints (torch) and the race kernels: worker processes only
+        from formula_tourney.tourney.race_worker import run_race_job
+
+        return run_race_job(job, progress)
     raise ValueError(f"unknown job kind {job.kind!r}")
 
 

@@ -5,7 +5,10 @@ the index (reconciled with the job folders first), closes a part when its last j
 promotes into the parts that wait on it, and goes on until no work is left. ``retry_failed``
 re-opens the parts that hold failed jobs (a closed part is otherwise frozen, since its
 promotion was decided on those results) and the parts downstream of them, whose promotion is
-then computed again. Progress reaches whoever shows it through :class:`RunProgress`.
+then computed again. A race part (kind ``race``) has one job, its series
+(``tourney.race_part``), made when its source part promotes; its row in the ``races`` table
+is its status, and a closed race part whose race files are incomplete (one deleted) opens
+again. Progress reaches whoever shows it through :class:`RunProgress`.
 """
 
 from __future__ import annotations
@@ -20,7 +23,8 @@ from formula_tourney.tourney.jobs import Job
 from formula_tourney.tourney.outcomes import baseline_result, general_pick, job_metrics
 from formula_tourney.tourney.plan import PlannedPart, Planner
 from formula_tourney.tourney.promote import promote, rank_entrants
-from formula_tourney.tourney.store import Store
+from formula_tourney.tourney.race_part import race_job, series_complete
+from formula_tourney.tourney.store import Store, now_iso
 
 
 class RunProgress(Protocol):
@@ -42,6 +46,8 @@ class _PartState:
     status: str = "pending"
     jobs: dict[str, Job] = field(default_factory=dict)
     baselines: dict[str, Job] = field(default_factory=dict)
+    race: Job | None = None
+    """A race part's series, once its entrants are known."""
 
 
 class Scheduler:
@@ -91,6 +97,7 @@ class Scheduler:
         the downstream parts, which wait for a new promotion."""
         failed_parts = {r["part"] for r in self.store.job_rows() if r["status"] == "failed"}
         failed_parts |= {r["part"] for r in self.store.baseline_rows() if r["status"] == "failed"}
+        failed_parts |= {r["part"] for r in self.store.race_rows() if r["status"] == "failed"}
         failed_parts &= set(self.order)
         downstream = self._downstream(failed_parts)
         for name in self.order:
@@ -122,6 +129,8 @@ class Scheduler:
                 state.status = "pending"
             if state.status == "done" and self._dependents_unpromoted(name):
                 state.status = "pending"  # died between closing the part and promoting: redo
+            if state.status == "done" and part.kind == "race" and store.race(name) is None:
+                state.status = "pending"  # closed at once by an older run: race it now
             if state.variants is None and name not in waiting:
                 state.variants = self._stored_promotion(name)
             if state.variants is not None:
@@ -145,6 +154,9 @@ class Scheduler:
     def _materialise(self, state: _PartState) -> None:
         """Create the jobs of a part whose variants are known; queue what is not finished."""
         part = state.planned.part
+        if part.kind == "race":
+            self._materialise_race(state)
+            return
         jobs = self.planner.jobs(state.planned.position, state.variants or [])
         state.jobs = {j.job_id: j for j in jobs}
         state.baselines = {j.job_id: j for j in state.planned.baselines}
@@ -179,6 +191,37 @@ class Scheduler:
                 self.queue.append(job)
         self.queue.sort(key=lambda j: (j.position, j.kind != "train"))
 
+    def _materialise_race(self, state: _PartState) -> None:
+        """A race part's one job: recorded, recovered from complete files, or queued."""
+        name = state.planned.part.name
+        job = race_job(self.planner, state.planned.position, self.store, state.variants or [])
+        if len(job.meta["entrants"]) < 2:
+            self._fail_part(name, f"{len(job.meta['entrants'])} car(s) to race (promoted "
+                            "entrants with a checkpoint, and bots); a race needs two")
+            return
+        state.race = job
+        store = self.store
+        store.add_race(job.meta)
+        store.set_part(name, entrants=job.meta["entrants"])
+        status = (store.race(name) or {}).get("status")
+        complete = series_complete(job)
+        if status == "done" and not complete:  # a race file was deleted: race it again
+            store.set_race(name, status="pending")
+            status = "pending"
+            if state.status == "done":
+                state.status = "pending"
+                store.set_part(name, status="pending")
+        elif status != "done" and complete:  # finished before the index knew
+            store.set_race(name, status="done", reason=None)
+            self.counts["recovered"] += 1
+            status = "done"
+        if status == "done":
+            self.counts["skipped"] += 1
+        if state.status in ("done", "failed") or status == "done":
+            return
+        self.queue.append(job)
+        self.queue.sort(key=lambda j: (j.position, j.kind != "train"))
+
     # -------------------------------------------------------------- main loop
     def run(self, pool: Executor) -> None:
         """Run until no job is queued or running (KeyboardInterrupt goes to the caller)."""
@@ -205,6 +248,8 @@ class Scheduler:
         for job, _slot in self.running.values():
             if job.kind == "train":
                 self.store.mark_pending(job.job_id)
+            elif job.kind == "race":
+                self.store.set_race(job.part, status="pending")
             else:
                 self.store.set_baseline(_bkey(job), status="pending")
         self.running.clear()
@@ -212,15 +257,21 @@ class Scheduler:
     def _update_total(self) -> None:
         if self.progress is None:
             return
-        total = sum(len(s.jobs) + len(s.baselines) for s in self.parts.values())
+        total = sum(len(s.jobs) + len(s.baselines) + (s.race is not None)
+                    for s in self.parts.values())
         done = sum(r["status"] in ("done", "failed") and r["job_id"] not in self.running
                    for r in self.store.job_rows())  # fmt: skip
         done += sum(r["status"] in ("done", "failed") for r in self.store.baseline_rows())
+        done += sum(r["status"] in ("done", "failed") for r in self.store.race_rows()
+                    if r["part"] in self.parts)
         self.progress.set_total(total, done)
 
     def _record_start(self, job: Job) -> None:
         if job.kind == "train":
             self.store.mark_running(job.job_id, None)
+        elif job.kind == "race":
+            self.store.set_race(job.part, status="running", reason=None, attempts="+1",
+                                started_at=now_iso())
         else:
             self.store.set_baseline(_bkey(job), status="running")
 
@@ -263,6 +314,9 @@ class Scheduler:
             self.counts["failed"] += 1
             if job.kind == "train":
                 self.store.mark_failed(job.job_id, reason, wall_s)
+            elif job.kind == "race":
+                self.store.set_race(job.part, status="failed", reason=reason[:2000],
+                                    finished_at=now_iso(), wall_s=wall_s)
             else:
                 self.store.set_baseline(_bkey(job), status="failed", reason=reason)
         if self.progress:
@@ -272,6 +326,13 @@ class Scheduler:
         if job.kind == "train":
             metrics = job_metrics(job.out_dir, job.config_hash)
             self.store.mark_done(job.job_id, metrics, event.wall_s)
+            return
+        if job.kind == "race":
+            if not series_complete(job):
+                raise CorruptResultError(f"{job.out_dir}: the race series ended without all "
+                                         "its race files and series.json")
+            self.store.set_race(job.part, status="done", reason=None, finished_at=now_iso(),
+                                wall_s=event.wall_s)
             return
         result = baseline_result(job.out_dir)
         self.store.set_baseline(
@@ -307,6 +368,8 @@ class Scheduler:
         if part.selection.kind == "general":
             self._select_general(state, rows)
         reason = f"{len(failed)} of {len(rows)} jobs failed" if failed else None
+        if part.kind == "race" and (self.store.race(part.name) or {}).get("status") == "failed":
+            reason = f"race series failed: {(self.store.race(part.name) or {}).get('reason')}"
         promoted = dict((self.store.part(part.name) or {}).get("promoted") or {})
         for name in self.order:
             other = self.parts[name]

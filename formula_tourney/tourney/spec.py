@@ -18,6 +18,7 @@ key to its line; files over :data:`MAX_SPEC_BYTES` are refused before they are r
 from __future__ import annotations
 
 import functools
+import math
 import re
 import stat
 import tomllib
@@ -29,7 +30,9 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from formula_tourney.agents.variants import ALL_VARIANTS, BEYOND_PAPER_VARIANTS, VARIANTS
+from formula_tourney.claims.schema import ClaimSet
 from formula_tourney.errors import UserInputError
+from formula_tourney.race.settings import RaceSettings
 from formula_tourney.safeio import check_name, read_user_text
 from formula_tourney.sim.config import RUN_OWNED_KEYS, EnvSettings
 from formula_tourney.training.spec import RUN_OWNED_HINTS, DemoSettings, RunSpec, Schedule
@@ -92,6 +95,7 @@ class VariantEntry(_Strict):
         "labelled so); wins over the part's demos.",
     )
     cars: _unset_or(Schedule, "cars") = None
+    env_steps: _unset_or(Schedule, "env_steps") = None
     preset: str | None = Field(
         None,
         description="Named settings preset (training.presets: paper, fast, fast-demos); wins "
@@ -177,13 +181,16 @@ class JobSettings(_Strict):
 
     seeds: int | None = Field(None, ge=1, le=1000, description="Independent runs per entrant.")
     episodes: _unset_or(Schedule, "episodes") = None
+    env_steps: _unset_or(Schedule, "env_steps") = None
     max_steps: _unset_or(Schedule, "max_steps") = None
     random_start: _unset_or(Schedule, "random_start") = None
     test_every_episodes: _unset_or(Schedule, "test_every_episodes") = None
     test_starts: _unset_or(Schedule, "test_starts") = None
     test_max_steps: _unset_or(Schedule, "test_max_steps") = None
     save_test_checkpoints: _unset_or(Schedule, "save_test_checkpoints") = None
+    test_grip_scales: _unset_or(Schedule, "test_grip_scales") = None
     cars: _unset_or(Schedule, "cars") = None
+    traffic_bots: _unset_or(Schedule, "traffic_bots") = None
     demos: DemoSettings | None = Field(
         None, description="Demonstrations for every entrant here (beyond the paper)."
     )
@@ -215,6 +222,30 @@ class JobSettings(_Strict):
                     f"{RUN_OWNED_HINTS.get(k, k)}" for k in owned
                 ))  # fmt: skip
         return value
+
+
+class RacePartSettings(RaceSettings):
+    """A race part's races: the race rules (``race.settings.RaceSettings``) plus how many, who
+    else starts, and the points."""
+
+    races: int = Field(3, ge=1, le=100, description="Races run, each on the qualifying grid "
+                       "rotated by one more slot, with seed seed + k.")
+    bots: list[Literal["follower"]] = Field(default_factory=list, description="Bots that "
+                                            "start too (the follower on the mincurv line).")
+    points: list[float] = Field(default_factory=lambda: [25, 18, 15, 12, 10, 8, 6, 4, 2, 1],
+                                min_length=1, description="Points for P1, P2, ...")
+    seed: int = Field(0, ge=0, description="Seed of the first race's grid jitter.")
+
+    @field_validator("points")
+    @classmethod
+    def _points(cls, value: list[float]) -> list[float]:
+        if any(not math.isfinite(v) or v < 0 for v in value):
+            raise ValueError("points must be finite numbers >= 0")
+        return value
+
+    def race_settings(self) -> RaceSettings:
+        """The rules of one race."""
+        return RaceSettings(**{k: getattr(self, k) for k in RaceSettings.model_fields})
 
 
 class Part(JobSettings):
@@ -249,6 +280,13 @@ class Part(JobSettings):
     baselines: list[Baseline] = Field(
         default_factory=list, description="Bots raced on every test track of this part."
     )
+    kind: Literal["train", "race"] = Field(
+        "train", description="train: entrants x setups x seeds training jobs; race: the best "
+        "models of the entrants promoted from `promoted_from` race each other (and `race.bots`) "
+        "on the first of `train_tracks`, one race job run by `formula-tourney run` after the "
+        "source part promotes (docs/races.md).")
+    race: RacePartSettings | None = Field(
+        None, description="The races of a part of kind race.")
 
     @field_validator("name", "study")
     @classmethod
@@ -262,6 +300,18 @@ class Part(JobSettings):
     def _one_source(self) -> Part:
         if (self.entrants is None) == (self.promoted_from is None):
             raise ValueError("give exactly one of 'entrants' and 'promoted_from'")
+        return self
+
+    @model_validator(mode="after")
+    def _race_part(self) -> Part:
+        if self.kind == "race":
+            if self.promoted_from is None:
+                raise ValueError("a part of kind race takes its entrants with 'promoted_from' "
+                                 "(their trained models)")
+            if self.race is None:
+                self.race = RacePartSettings()
+        elif self.race is not None:
+            raise ValueError("'race' settings need kind = \"race\"")
         return self
 
     def all_test_tracks(self) -> list[str]:
@@ -284,6 +334,11 @@ class Tournament(_Strict):
         default_factory=JobSettings, description="Settings shared by all parts."
     )
     parts: list[Part] = Field(min_length=1, description="Parts in running order.")
+    claims: ClaimSet | None = Field(
+        None,
+        description="Findings the report checks: include = [\"paper\"] and [[claims.claim]] "
+        "tables (claims.schema; docs/claims.md). Not used by the run itself.",
+    )
 
     @field_validator("name")
     @classmethod
@@ -431,9 +486,9 @@ def _split_key(text: str) -> list[str]:
     return [part.strip().strip("\"'") for part in text.split(".")]
 
 
-def _model_at(loc: tuple[Any, ...]) -> type[BaseModel] | None:
-    """The pydantic model whose fields live at ``loc`` (to list allowed keys)."""
-    model: type[BaseModel] | None = Tournament
+def _model_at(loc: tuple[Any, ...], root: type[BaseModel]) -> type[BaseModel] | None:
+    """The pydantic model whose fields live at ``loc`` below ``root`` (to list allowed keys)."""
+    model: type[BaseModel] | None = root
     for item in loc:
         if model is None:
             return None
@@ -441,8 +496,6 @@ def _model_at(loc: tuple[Any, ...]) -> type[BaseModel] | None:
             continue
         field = model.model_fields.get(str(item))
         if field is None:
-            if model is Tournament:
-                return None
             return None
         model = _inner_model(field.annotation)
         if model is None and str(item) == "variants":
@@ -467,8 +520,12 @@ def _key_text(loc: tuple[Any, ...]) -> str:
     return out
 
 
-def describe_errors(err: ValidationError, path: Path, text: str) -> str:
-    """Turn pydantic errors into ``file:line: key: problem (allowed ...)`` lines."""
+def describe_errors(
+    err: ValidationError, path: Path, text: str, root: type[BaseModel] | None = None
+) -> str:
+    """Turn pydantic errors of a TOML file validated as ``root`` (default: a tournament) into
+    ``file:line: key: problem (allowed ...)`` lines; tune and claims files use it too."""
+    root = Tournament if root is None else root
     locator = locator_for(text)
     out = []
     for item in err.errors():
@@ -479,20 +536,20 @@ def describe_errors(err: ValidationError, path: Path, text: str) -> str:
         where = f"{path}:{line}" if line else str(path)
         msg = item["msg"]
         if item["type"] == "extra_forbidden":
-            model = _model_at(loc[:-1]) if len(loc) > 1 else Tournament
-            if loc and loc[0] == "variants" and len(loc) == 3:
+            model = _model_at(loc[:-1], root) if len(loc) > 1 else root
+            if root is Tournament and loc and loc[0] == "variants" and len(loc) == 3:
                 model = VariantEntry
-            if loc and loc[0] == "parts" and len(loc) == 3:
+            if root is Tournament and loc and loc[0] == "parts" and len(loc) == 3:
                 model = Part
             allowed = ", ".join(model.model_fields) if model else "?"
             msg = f"unknown key; allowed keys: {allowed}"
         elif item["type"] == "missing":
             msg = "required key is missing"
         else:
-            field = _field_at(loc)
+            field = _field_at(loc, root)
             if field is not None and field.description and "literal" not in item["type"]:
                 msg = f"{msg} ({field.description})"
-        out.append(f"{where}: {_key_text(loc)}: {msg}")
+        out.append(f"{where}: {_key_text(loc) or '(file)'}: {msg}")
     return "\n".join(out)
 
 
@@ -501,11 +558,11 @@ def _looks_like_type(text: str) -> bool:
                             "function-", "none"))
 
 
-def _field_at(loc: tuple[Any, ...]) -> Any:
+def _field_at(loc: tuple[Any, ...], root: type[BaseModel]) -> Any:
     names = [x for x in loc if not isinstance(x, int)]
     if not names:
         return None
-    model = _model_at(tuple(loc[:-1])) if len(loc) > 1 else Tournament
+    model = _model_at(tuple(loc[:-1]), root) if len(loc) > 1 else root
     if model is None:
         return None
     return model.model_fields.get(str(names[-1]))

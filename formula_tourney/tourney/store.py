@@ -1,6 +1,7 @@
 """The results index: ``index.sqlite`` of one tournament, written by the parent process only.
 
-Tables ``jobs``, ``parts``, ``baselines``, ``general_models`` and ``meta``; their schema, the file
+Tables ``jobs``, ``parts``, ``baselines``, ``general_models``, ``races`` (one row per race
+part's series: status only, the results are the race files) and ``meta``; their schema, the file
 names and the folder layout are ``results.layout``'s. Job folders are written by workers, each
 file atomically, ``summary.json`` last, so a folder with ``summary.json`` is a finished job
 whatever the index says: :meth:`Store.reconcile` trusts the files after a crash. An index that
@@ -273,6 +274,42 @@ class Store:
             args = (part,)
         return [dict(r) for r in self._query(sql + " ORDER BY part, bot, track", args)]
 
+    def add_race(self, row: Mapping[str, Any]) -> None:
+        """Record a race part's series (part, track, races, entrants, path, config_hash). A
+        series already recorded keeps its status unless its config hash changed (other
+        entrants or settings: another series), which makes it pending again."""
+        with self.transaction() as db:
+            db.execute(
+                "INSERT OR IGNORE INTO races(part, track, races, entrants, status, attempts, "
+                "path, config_hash) VALUES (?,?,?,?,'pending',0,?,?)",
+                (row["part"], row["track"], row["races"], json.dumps(row["entrants"]),
+                 row["path"], row["config_hash"]),
+            )
+            db.execute(
+                "UPDATE races SET status='pending', reason=NULL, track=?, races=?, entrants=?, "
+                "config_hash=? WHERE part=? AND config_hash IS NOT ?",
+                (row["track"], row["races"], json.dumps(row["entrants"]), row["config_hash"],
+                 row["part"], row["config_hash"]),
+            )
+
+    def race(self, part: str) -> dict[str, Any] | None:
+        rows = self._query("SELECT * FROM races WHERE part=?", (part,))
+        return None if not rows else _decode_race(dict(rows[0]))
+
+    def set_race(self, part: str, **values: Any) -> None:
+        """Update a race series' row; ``attempts=+1`` counts one more attempt."""
+        bump = values.pop("attempts", None) == "+1"
+        cols = [f"{k}=?" for k in values] + (["attempts=attempts+1"] if bump else [])
+        if not cols:
+            return
+        with self.transaction() as db:
+            db.execute(f"UPDATE races SET {', '.join(cols)} WHERE part=?",
+                       (*[_num(v) if isinstance(v, float) else v for v in values.values()],
+                        part))
+
+    def race_rows(self) -> list[dict[str, Any]]:
+        return [_decode_race(dict(r)) for r in self._query("SELECT * FROM races ORDER BY part")]
+
     def set_general_models(self, part: str, rows: list[dict[str, Any]]) -> None:
         with self.transaction() as db:
             db.execute("DELETE FROM general_models WHERE part=?", (part,))
@@ -306,6 +343,7 @@ class Store:
                 fixed["requeued"] += 1
         with self.transaction() as db:
             db.execute("UPDATE baselines SET status='pending' WHERE status='running'")
+            db.execute("UPDATE races SET status='pending' WHERE status='running'")
             db.execute("UPDATE parts SET status='pending' WHERE status='running'")
         return fixed
 
@@ -362,6 +400,12 @@ def _decode_part(row: dict[str, Any]) -> dict[str, Any]:
     for key in ("entrants", "promoted", "ranking"):
         if row.get(key):
             row[key] = json.loads(row[key])
+    return row
+
+
+def _decode_race(row: dict[str, Any]) -> dict[str, Any]:
+    if row.get("entrants"):
+        row["entrants"] = json.loads(row["entrants"])
     return row
 
 

@@ -185,7 +185,7 @@ def load_tune_spec(path: str | Path) -> tuple[TuneSpec, str]:
     try:
         spec = TuneSpec.model_validate(raw)
     except ValidationError as err:
-        raise UserInputError(describe_errors(err, path, text)) from None
+        raise UserInputError(describe_errors(err, path, text, TuneSpec)) from None
     try:
         check_name(spec.name, "tune name")
     except UserInputError as err:

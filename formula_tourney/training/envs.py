@@ -7,6 +7,7 @@ training built it (issue 10: the replay used to drive another line than training
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 from typing import Any
 
@@ -14,12 +15,17 @@ import gymnasium
 import numpy as np
 
 from formula_tourney.bots.reference import reference_offsets
+from formula_tourney.errors import UserInputError
+from formula_tourney.lines.limit import reference_limit_s
 from formula_tourney.sim.catalog import load_track
 from formula_tourney.sim.config import EnvConfig
 from formula_tourney.sim.track import Track
 from formula_tourney.training.spec import RunSpec
 
 ENV_ID = "FormulaRacing-v0"
+TRAFFIC_ENV_ID = "FormulaRacingTraffic-v0"
+"""``race.traffic_env.TrafficEnv`` through Gymnasium's registry (``formula_tourney/__init__``):
+``race`` imports ``training``, so ``training`` names the env and does not import it."""
 
 
 def reference_line(track: Track, kind: str, spec: RunSpec) -> Any:
@@ -48,18 +54,40 @@ class RunEnvs:
         self.lines = {
             name: reference_line(track, self.reference, spec) for name, track in self.tracks.items()
         }
+        self._limits: dict[tuple[str, float], float] = {}
 
-    def config(self, track: str, *, test: bool, max_steps: int | None = None) -> EnvConfig:
+    def config(self, track: str, *, test: bool, max_steps: int | None = None,
+               grip_scale: float | None = None) -> EnvConfig:
         """The full env config for ``track``: training episodes start at random places and run
         ``schedule.max_steps``; tests start where the caller puts the car and run
-        ``schedule.test_max_steps`` (or ``max_steps``)."""
+        ``schedule.test_max_steps`` (or ``max_steps``). A test drives at one fixed grip,
+        ``grip_scale`` (default the env's), so its lap reads against one reference limit: a
+        grip range or a drying track applies to training episodes only."""
         schedule = self.spec.schedule
         steps = max_steps or (schedule.test_max_steps if test else schedule.max_steps)
-        return EnvConfig(
-            **{k: getattr(self.spec.env, k) for k in type(self.spec.env).model_fields},
-            track=self.tracks[track], reference_line=self.lines[track], lac=self.spec.lac,
-            max_steps=steps, random_start=False if test else schedule.random_start,
-        )  # fmt: skip
+        env = {k: getattr(self.spec.env, k) for k in type(self.spec.env).model_fields}
+        if test:
+            env.update(grip_scale_range=None, grip_drying=None,
+                       grip_scale=self.spec.env.grip_scale if grip_scale is None else grip_scale)
+        # parse, not construct: a grip given here (``eval --grip``) is checked like any env key
+        return EnvConfig.parse({
+            **env,
+            "track": self.tracks[track], "reference_line": self.lines[track],
+            "lac": self.spec.lac, "max_steps": steps,
+            "random_start": False if test else schedule.random_start,
+        }, f"{'test ' if test else ''}env of {track}")  # fmt: skip
+
+    def test_limit_s(self, track: str, grip_scale: float) -> float:
+        """The reference limit of ``track`` at ``grip_scale`` for the tests table, computed once
+        per track and grip; nan for a run that tests at its own grip only (the part's baselines
+        carry that limit, and a job need not compute the min-curvature line)."""
+        if len(self.spec.test_grips) < 2 or not math.isfinite(grip_scale):
+            return math.nan
+        key = (track, float(grip_scale))
+        if key not in self._limits:
+            car = self.spec.env.car_params()
+            self._limits[key] = reference_limit_s(self.tracks[track], car, grip_scale)
+        return self._limits[key]
 
     def make(
         self,
@@ -68,9 +96,21 @@ class RunEnvs:
         test: bool,
         max_steps: int | None = None,
         render_mode: str | None = None,
+        grip_scale: float | None = None,
     ) -> gymnasium.Env:
-        """A FormulaRacing-v0 env for ``track`` (through gymnasium.make, as users build it)."""
-        config = self.config(track, test=test, max_steps=max_steps)
+        """A FormulaRacing-v0 env for ``track`` (through gymnasium.make, as users build it).
+
+        A run with ``schedule.traffic_bots`` trains among that many bots in TrafficEnv and
+        tests there with none: alone, as every run is tested, but with the observation (the
+        opponent block) its actor was trained on."""
+        config = self.config(track, test=test, max_steps=max_steps, grip_scale=grip_scale)
+        bots = self.spec.schedule.traffic_bots
+        if bots:
+            if render_mode is not None:
+                raise UserInputError(f"{track}: a run trained in traffic has no {render_mode!r} "
+                                     "render mode; race it with `formula-tourney race --gif`")
+            return gymnasium.make(TRAFFIC_ENV_ID, config=config, bots=0 if test else bots,
+                                  disable_env_checker=True)
         return gymnasium.make(
             ENV_ID, config=config, render_mode=render_mode, disable_env_checker=True
         )
@@ -79,6 +119,8 @@ class RunEnvs:
         """``cars`` training cars on ``track`` in one FormulaRacingVectorEnv (through
         ``gymnasium.make_vec`` and the id's vector entry point; next-step autoreset), with the
         training config of :meth:`config`."""
+        if self.spec.schedule.traffic_bots:  # RunSpec refuses cars > 1 with traffic
+            raise ValueError("a run with traffic_bots drives one car: no vector env")
         config = self.config(track, test=False)
         return gymnasium.make_vec(
             ENV_ID, num_envs=cars, vectorization_mode="vector_entry_point", config=config

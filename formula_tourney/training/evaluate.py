@@ -39,6 +39,8 @@ class DriveResult:
     termination: str
     distance_m: float = math.nan
     best_trace: pd.DataFrame | None = field(default=None, repr=False)
+    grip_scale: float = math.nan
+    """The grip the drive ran at (the env's ``info["grip_scale"]``)."""
 
     @property
     def laps(self) -> int:
@@ -115,6 +117,7 @@ def run_test_episode(
         steps=steps,
         termination=str(info.get("termination") or ("max_steps" if truncated else "")),
         distance_m=float(info.get("distance_m", math.nan)),
+        grip_scale=float(info.get("grip_scale", math.nan)),
     )
     if record_trace and math.isfinite(ep.best_lap_s):
         ep.best_trace = _lap_trace(rows, lap_times, lap_damage, ep.best_lap_s)
@@ -143,13 +146,16 @@ def _lap_trace(
     return frame
 
 
-def tests_row(ep: DriveResult, episode: int, env_steps: int, checkpoint: str) -> dict[str, Any]:
-    """The tests.parquet row of one test drive (columns from docs/CONTRACTS.md)."""
+def tests_row(ep: DriveResult, episode: int, env_steps: int, checkpoint: str,
+              reference_limit_s: float = math.nan) -> dict[str, Any]:
+    """The tests.parquet row of one test drive (columns from docs/CONTRACTS.md);
+    ``reference_limit_s`` is the limit at the drive's grip (``RunEnvs.test_limit_s``)."""
     return {
         "episode": episode, "env_steps": env_steps, "track": ep.track,
         "start_s_m": ep.start_s_m, "finished": ep.finished, "best_lap_s": ep.best_lap_s,
         "laps": ep.laps, "damage": ep.damage, "reward": ep.reward, "steps": ep.steps,
         "termination": ep.termination, "checkpoint": checkpoint, "distance_m": ep.distance_m,
+        "grip_scale": ep.grip_scale, "reference_limit_s": reference_limit_s,
     }  # fmt: skip
 
 
@@ -157,9 +163,40 @@ def laps_rows(ep: DriveResult, episode: int) -> list[dict[str, Any]]:
     """The laps.parquet rows of one test drive."""
     return [
         {"episode": episode, "track": ep.track, "start_s_m": ep.start_s_m, "lap_index": i,
-         "lap_time_s": t, "lap_damage": d, "clean": bool(d <= 0.0)}
+         "lap_time_s": t, "lap_damage": d, "clean": bool(d <= 0.0), "grip_scale": ep.grip_scale}
         for i, (t, d) in enumerate(zip(ep.lap_times_s, ep.lap_damage, strict=True))
     ]  # fmt: skip
+
+
+def other_grip_tests(
+    agent: DDPGAgent,
+    envs: RunEnvs,
+    track: str,
+    env_cache: dict[Any, Any],
+    *,
+    episode: int,
+    env_steps: int,
+    checkpoint: str,
+    seed: int,
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """One test round on ``track`` at each of the run's other grips (``RunSpec.test_grips``
+    after the first): its tests and laps rows, from the same starts and seeds as the round at
+    the run's own grip. These rows feed the per-grip tables only; the best checkpoint, the
+    traces and promotion read the own grip. Envs are kept in ``env_cache`` under (track, grip)
+    so that the caller closes them with its own."""
+    tests: list[dict[str, Any]] = []
+    laps: list[dict[str, Any]] = []
+    starts = start_positions(envs.tracks[track].length_m, envs.spec.schedule.test_starts)
+    for grip in envs.spec.test_grips[1:]:
+        key = (track, grip)
+        env = env_cache.get(key) or env_cache.setdefault(
+            key, envs.make(track, test=True, grip_scale=grip))
+        limit = envs.test_limit_s(track, grip)
+        for k, s0 in enumerate(starts):
+            drive = run_test_episode(agent, env, track, s0, seed=seed + k, record_trace=False)
+            tests.append(tests_row(drive, episode, env_steps, checkpoint, limit))
+            laps.extend(laps_rows(drive, episode))
+    return tests, laps
 
 
 def evaluate_checkpoint(
@@ -169,16 +206,18 @@ def evaluate_checkpoint(
     max_steps: int = 1500,
     device: str = "cpu",
     reference: str | None = None,
+    grip_scale: float | None = None,
 ) -> dict[str, Any]:
     """Drive a saved agent greedily on ``track`` from ``starts`` starts; the CLI's ``eval``.
 
     The env is built from the checkpoint's run spec (reference line, LAC, env settings), as in
-    training, since the observation depends on them; ``reference`` replaces the line kind.
+    training, since the observation depends on them; ``reference`` replaces the line kind and
+    ``grip_scale`` the grip (a test at another grip than the run's).
     """
     t0 = time.perf_counter()
     agent, spec, _extra = load_run_checkpoint(checkpoint, device=device)
     envs = RunEnvs(spec, extra_tracks=[track], reference=reference)
-    env = envs.make(track, test=True, max_steps=max_steps)
+    env = envs.make(track, test=True, max_steps=max_steps, grip_scale=grip_scale)
     check_observation_size(env, agent, checkpoint)
     drives = [
         run_test_episode(agent, env, track, s0, seed=k)
@@ -190,6 +229,7 @@ def evaluate_checkpoint(
         "checkpoint": str(checkpoint),
         "track": track,
         "reference": envs.reference,
+        "grip_scale": float(env.unwrapped.env_config.grip_scale),
         "best_lap_s": None if math.isnan(best) else best,
         "laps": sum(d.laps for d in drives),
         "damage": sum(d.damage for d in drives),

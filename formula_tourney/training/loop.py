@@ -39,6 +39,7 @@ from formula_tourney.training.demos import behaviour_clone, collect_demonstratio
 from formula_tourney.training.envs import RunEnvs
 from formula_tourney.training.evaluate import (
     laps_rows,
+    other_grip_tests,
     run_test_episode,
     start_positions,
     tests_row,
@@ -139,6 +140,7 @@ def train(
 
     episodes_rows: list[dict[str, Any]] = []
     test_table: list[dict[str, Any]] = []
+    grip_test_table: list[dict[str, Any]] = []  # the other test grips: written, not summarised
     lap_table: list[dict[str, Any]] = []
     best_traces: dict[str, float] = {}
     key_track = spec.key_track
@@ -166,8 +168,14 @@ def train(
                 for k, s0 in enumerate(starts)
             ]
             for drive in drives:
-                test_table.append(tests_row(drive, episode, env_steps, ckpt_rel))
+                limit = envs.test_limit_s(name, drive.grip_scale)
+                test_table.append(tests_row(drive, episode, env_steps, ckpt_rel, limit))
                 lap_table.extend(laps_rows(drive, episode))
+            grip_tests, grip_laps = other_grip_tests(  # schedule.test_grip_scales; tables only
+                agent, envs, name, test_envs, episode=episode, env_steps=env_steps,
+                checkpoint=ckpt_rel, seed=spec.seed * 1000)
+            grip_test_table.extend(grip_tests)
+            lap_table.extend(grip_laps)
             # the model's clean lap, as every table and promotion counts it (results.metrics)
             best_here = model_clean_lap_s([d.best_lap_s for d in drives],
                                           [d.damage for d in drives])  # fmt: skip
@@ -193,7 +201,7 @@ def train(
         _write_tables()
 
     def _write_tables() -> None:
-        folder.write_tables(episodes_rows, test_table, lap_table)
+        folder.write_tables(episodes_rows, test_table + grip_test_table, lap_table)
 
     def learn(stored: int) -> None:
         """Earn updates for the ``stored`` transitions of this step and spend them."""
@@ -233,7 +241,8 @@ def train(
     stopped_early = False
     epsilon = 1.0
     samples_its_policy = not agent_cfg.uses_action_noise  # decided once, not every step
-    while episode < schedule.episodes and not stopped_early:
+    last = False
+    while not last and not stopped_early:
         for car in collector.started:
             noises[car].reset()
         epsilon = linear_epsilon(env_steps, agent_cfg.exploration_steps)
@@ -260,7 +269,9 @@ def train(
             writer.add_scalar("train/steps", ended.steps, env_steps)
             writer.add_scalar("train/laps", ended.laps, env_steps)
             writer.add_scalar("train/epsilon", epsilon, env_steps)
-            if episode % schedule.test_every_episodes == 0 or episode == schedule.episodes:
+            budget_spent = schedule.env_steps is not None and env_steps >= schedule.env_steps
+            last = budget_spent or episode == schedule.episodes
+            if episode % schedule.test_every_episodes == 0 or last:
                 run_tests()
             if progress is not None:
                 answer = progress({
@@ -270,7 +281,7 @@ def train(
                 })  # fmt: skip
                 if answer is False:
                     stopped_early = True
-            if stopped_early or episode == schedule.episodes:
+            if stopped_early or last:
                 break
     if stopped_early and not test_table:
         run_tests()

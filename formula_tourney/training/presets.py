@@ -6,7 +6,7 @@ paper and every table labels it so (``RunSpec.beyond_paper``). A preset holds ag
 schedule keys and demonstrations common to every family, plus per-family agent overrides where
 the measurements said a family needs its own; the user's own settings always win over a preset.
 
-Each preset's description says which measurement chose it (docs/agents.md has the curves).
+Each preset's description says which measurement chose it (docs/agents.md has the figures).
 """
 
 from __future__ import annotations
@@ -53,6 +53,12 @@ class Preset(BaseModel):
 _FAST = {"batch_size": 64, "exploration_steps": 40_000, "learning_starts": 1_000,
          "buffer_size": 200_000}  # fmt: skip
 
+# 128-128 networks: on `oval` (centre line, WIN1, seeds 0 and 1, 240 CPU-s, 2026-12-01) the
+# follower on the centre line was beaten after ~126 and ~150 CPU-s, best laps 34.97 and 34.94 s,
+# against 247 and 301 CPU-s for 2 of 4 seeds with 400-300; 256-256 with actor_lr 3e-4 and a 15k
+# exploration phase were not faster.
+_FAST_SMALL = {**_FAST, "hidden": (128, 128)}
+
 PRESETS: dict[str, Preset] = {
     "paper": Preset(
         name="paper",
@@ -71,6 +77,13 @@ PRESETS: dict[str, Preset] = {
         "start of the actor.",
         overrides=_FAST,
         demos={"laps": 3, "line": "mincurv", "batch_fraction": 0.5, "bc_steps": 2000},
+    ),
+    "fast-small": Preset(
+        name="fast-small",
+        description="'fast' with 128-128 networks: an update costs ~1/5 of 400-300's at batch 64 "
+        "(1 500 against 320 updates per CPU-s); on `oval` WIN1 beat the follower on the centre "
+        "line about twice as soon as with 'fast', WIN4 sooner still (docs/agents.md).",
+        overrides=_FAST_SMALL,
     ),
 }
 

@@ -11,10 +11,12 @@ the env's settings (``sim.config.EnvSettings``), the reference line and LAC, the
 (:class:`DemoSettings`). Keys an env override would share with the run (``lac``, ``max_steps``,
 ...) are not env settings at all, so setup and override can never both set one.
 
-Settings added after results layout 2 (``schedule.cars``, ``demos``) are left out of
-:meth:`RunSpec.to_json` while at their defaults: a default run's ``config.json``, checkpoints and
-:meth:`RunSpec.digest` are byte for byte what they were before those settings existed, so a
-resumed tournament still recognises its finished jobs.
+Settings added after results layout 2 (``schedule.cars``, ``schedule.env_steps``,
+``schedule.test_grip_scales``,
+``schedule.traffic_bots``, ``demos``, the env's ``grip_scale_range`` and ``grip_drying``) are
+left out of :meth:`RunSpec.to_json` while at their defaults: a default run's ``config.json``,
+checkpoints and :meth:`RunSpec.digest` are byte for byte what they were before those settings
+existed, so a resumed tournament still recognises its finished jobs.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from formula_tourney.agents.variants import AgentConfig, get_variant
 from formula_tourney.errors import UserInputError
 from formula_tourney.sim.catalog import check_track_name
-from formula_tourney.sim.config import RUN_OWNED_KEYS, EnvSettings
+from formula_tourney.sim.config import RUN_OWNED_KEYS, EnvSettings, GripScale
 from formula_tourney.training.presets import get_preset
 
 Reference = Literal["centre", "recorded", "mincurv"]
@@ -54,6 +56,16 @@ class Schedule(_Frozen):
     """How long a run trains and how often, from where and how long it is tested."""
 
     episodes: int = Field(100, ge=1, description="Training episodes.")
+    env_steps: int | None = Field(
+        None,
+        ge=1,
+        le=10**10,
+        description="Env-step budget: the run also ends at the first finished episode at or "
+        "after this many env steps (car-steps), with a last test round. Episodes are a poor "
+        "clock on a hard track (a run that crashes early spends hundreds of episodes in a few "
+        "thousand steps); env steps fix the cost of a run and keep it deterministic. None: "
+        "episodes alone.",
+    )
     max_steps: int = Field(
         1000, ge=1, description="Control steps per training episode (truncated at the end)."
     )
@@ -72,6 +84,21 @@ class Schedule(_Frozen):
     save_test_checkpoints: bool = Field(
         False, description="Keep a checkpoint ep-<N>.pt at every test, not only best and last."
     )
+    test_grip_scales: tuple[GripScale, ...] = Field(
+        (),
+        max_length=8,
+        description="Grip scales the tests also run at (train on one grip, test on another): "
+        "every test round drives each test track at the env's grip_scale (the run's own, which "
+        "best checkpoint, promotion and the paper's tables read) and then at each of these; "
+        "the tests table records each drive's grip and the reference limit at that grip.",
+    )
+
+    @field_validator("test_grip_scales")
+    @classmethod
+    def _distinct_grips(cls, v: tuple[float, ...]) -> tuple[float, ...]:
+        if len(set(v)) != len(v):
+            raise ValueError(f"{list(v)}: list each grip once")
+        return v
     cars: int = Field(
         1,
         ge=1,
@@ -84,6 +111,16 @@ class Schedule(_Frozen):
         "`test_every_episodes` count "
         "finished car-episodes; the agent's `updates_per_step` stays updates per stored "
         "transition (car-step), so a step of N cars earns N times as many updates.",
+    )
+    traffic_bots: int = Field(
+        0,
+        ge=0,
+        le=19,
+        description="Traffic while training (beyond the paper): this many follower bots drive "
+        "around the learner in every training episode (race.traffic_env.TrafficEnv, "
+        "alternately ahead and behind, 30-150 m apart) and the observation gets the 36 "
+        "opponent sectors, so the model can learn to pass and defend; its tests drive alone "
+        "with the same observation. 0: the paper's solo FormulaRacing-v0. Needs cars = 1.",
     )
 
 
@@ -161,6 +198,11 @@ class RunSpec(_Frozen):
                 f"schedule.cars ({self.schedule.cars}) must be 1 or at least the number of "
                 f"train tracks ({tracks}): each track needs a car"
             )
+        if self.schedule.traffic_bots and (self.schedule.cars > 1 or self.demos is not None):
+            raise ValueError(
+                f"schedule.traffic_bots ({self.schedule.traffic_bots}) drives one learner "
+                "among bots: it needs cars = 1 and no demos"
+            )
         if self.demos is not None:
             rows = self.demos.demo_rows(self.agent.batch_size)
             if rows >= self.agent.batch_size:
@@ -169,6 +211,13 @@ class RunSpec(_Frozen):
                     f"in a batch of {self.agent.batch_size}"
                 )
         return self
+
+    @property
+    def test_grips(self) -> tuple[float, ...]:
+        """Every grip the tests run at: the run's own (``env.grip_scale``) first, then the other
+        ``schedule.test_grip_scales`` (the own one listed again changes nothing)."""
+        own = self.env.grip_scale
+        return (own, *(g for g in self.schedule.test_grip_scales if g != own))
 
     @field_validator("train_tracks", "test_tracks")
     @classmethod
@@ -195,6 +244,8 @@ class RunSpec(_Frozen):
             out.append(f"demos ({DEMO_BOT} on {self.demos.line})")
         if self.schedule.cars > 1:
             out.append(f"{self.schedule.cars} cars")
+        if self.schedule.traffic_bots:
+            out.append(f"traffic ({self.schedule.traffic_bots} {DEMO_BOT} bots)")
         return out
 
     def to_json(self) -> dict[str, Any]:
@@ -205,6 +256,15 @@ class RunSpec(_Frozen):
             del data["demos"]
         if data["schedule"]["cars"] == 1:
             del data["schedule"]["cars"]
+        if data["schedule"]["env_steps"] is None:
+            del data["schedule"]["env_steps"]
+        if not data["schedule"]["traffic_bots"]:
+            del data["schedule"]["traffic_bots"]
+        if not data["schedule"]["test_grip_scales"]:
+            del data["schedule"]["test_grip_scales"]
+        for key in ("grip_scale_range", "grip_drying"):  # env keys newer than layout 2
+            if data["env"][key] is None:
+                del data["env"][key]
         if data["preset"] == "paper":
             del data["preset"]
         return data

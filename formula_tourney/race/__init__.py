@@ -1,0 +1,1 @@
+"""Races: entrants' drivers and bots on one track at once, and the result as motorsport gives it."""

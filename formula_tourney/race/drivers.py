@@ -1,0 +1,78 @@
+"""Who drives a race car: a trained model (from its telemetry) or a bot (from the true state).
+
+A driver is anything with ``reset(obs, opp)`` and ``act(obs, opp, state_row) -> (3,)``: a model
+reads its own telemetry (plus the opponent block if it was trained with one; a model without it
+drives blind to the others), a bot reads the simulator's state as the follower always has.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from formula_tourney.agents.replay import ObservationWindow
+from formula_tourney.bots.follower import CarState, Follower
+from formula_tourney.sim import kernels as K
+
+
+class Driver(Protocol):
+    """The race loop's view of a driver."""
+
+    name: str
+    kind: str
+    sees_opponents: bool
+
+    def reset(self, obs: np.ndarray, opp: np.ndarray) -> None: ...
+
+    def act(self, obs: np.ndarray, opp: np.ndarray, state_row: np.ndarray) -> np.ndarray: ...
+
+
+@dataclass
+class ModelDriver:
+    """A trained actor, greedy, fed the window of observations it was trained on."""
+
+    name: str
+    agent: Any
+    sees_opponents: bool
+    source: str = ""
+    kind: str = "model"
+    _window: ObservationWindow | None = field(default=None, init=False, repr=False)
+    _stack: np.ndarray | None = field(default=None, init=False, repr=False)
+
+    def _input(self, obs: np.ndarray, opp: np.ndarray) -> np.ndarray:
+        if self.sees_opponents:
+            return np.concatenate([obs, opp.astype(np.float32)])
+        return obs
+
+    def reset(self, obs: np.ndarray, opp: np.ndarray) -> None:
+        self._window = ObservationWindow(self.agent.cfg.window)
+        self._stack = self._window.reset(self._input(obs, opp))
+
+    def act(self, obs: np.ndarray, opp: np.ndarray, state_row: np.ndarray) -> np.ndarray:
+        assert self._window is not None, "reset() first"
+        if self._stack is None:
+            self._stack = self._window.push(self._input(obs, opp))
+        action = np.asarray(self.agent.act(self._stack), dtype=np.float64)
+        self._stack = None  # the next act pushes the observation that this action leads to
+        return action
+
+
+@dataclass
+class BotDriver:
+    """The follower bot on its line (it reads the true state and does not see other cars)."""
+
+    name: str
+    follower: Follower
+    kind: str = "bot"
+    sees_opponents: bool = False
+
+    def reset(self, obs: np.ndarray, opp: np.ndarray) -> None:
+        self.follower.reset()
+
+    def act(self, obs: np.ndarray, opp: np.ndarray, state_row: np.ndarray) -> np.ndarray:
+        st = CarState(float(state_row[K.ST_X]), float(state_row[K.ST_Y]),
+                      float(state_row[K.ST_PSI]), float(state_row[K.ST_VX]),
+                      float(state_row[K.ST_VY]), float(state_row[K.ST_R]))
+        return np.asarray(self.follower.act(st), dtype=np.float64)

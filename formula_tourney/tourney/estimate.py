@@ -1,0 +1,217 @@
+"""What a tournament will cost before it runs: jobs, env steps, CPU-hours and wall time.
+
+The model of one training job, from its run specification and the rates measured here
+(``tourney.estimate_calibrate``)::
+
+    steps    = episodes x L            L: mean exploring episode length measured, <= max_steps
+    updates  = max(0, steps - max(learning_starts, batch_size) + 1) x updates_per_step
+    tests    = ceil(episodes / test_every_episodes) rounds x test_starts x test tracks
+    cpu_s    = setup + steps x t_step + updates x t_update + tests x t_test_episode
+               + rounds x (1 + save_test_checkpoints) x t_checkpoint
+
+The uncertainty (``cpu_s_low``/``cpu_s_high``, about 95 %) propagates the standard errors of
+the rates and of L. It does not cover learning: once an agent laps, its episodes run longer
+(up to max_steps) and so do its tests; ``cpu_s_max`` is that bound (every episode and test to
+its step limit). Baseline drives are timed as they are. A promoted part's entrants are not
+known yet: it is counted with the variants its rule can promote at most (one per family with
+``best_per_family``, at most ``top_k``), each at the mean cost of the variants that could come.
+
+Wall time replays the scheduler (``tourney.scheduler``): earlier parts first and long jobs
+first within them, a promoted part once its source closed, one job per worker slot, each
+worker paying its imports once; a Ray cluster of N CPUs is N slots plus ``RAY_INIT_S``.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from formula_tourney.tourney.estimate_calibrate import Rates, WorkerStart
+from formula_tourney.training.spec import RunSpec
+
+RAY_INIT_S = 13.5
+"""``ray.init`` measured at 12-15 s on this kind of machine (DESIGN.md, Orchestration)."""
+Z95 = 1.96
+
+
+@dataclass(frozen=True)
+class JobCost:
+    """The estimated cost of one job (seconds of one core)."""
+
+    env_steps: float
+    updates: float
+    test_episodes: int
+    cpu_s: float
+    cpu_s_se: float
+    cpu_s_max: float
+
+    def scaled(self, factor: float) -> JobCost:
+        return JobCost(self.env_steps * factor, self.updates * factor,
+                       int(round(self.test_episodes * factor)), self.cpu_s * factor,
+                       self.cpu_s_se * factor, self.cpu_s_max * factor)
+
+
+def count_test_rounds(episodes: int, every: int) -> int:
+    """Test rounds of a run: after every ``every`` episodes, and after the last one."""
+    return episodes // every + (1 if episodes % every else 0)
+
+
+def job_cost(spec: RunSpec, rates: Rates, fixed_s: float | None = None) -> JobCost:
+    """The module's model of one training job; ``fixed_s``: what a job costs beyond its steps
+    (``WorkerStart.next_job_s``; default: the in-process setup measured with the rates)."""
+    sch, cfg = spec.schedule, spec.agent
+    length = min(float(rates.episode_steps_mean), float(sch.max_steps))
+    steps = sch.episodes * length
+    learn_from = max(cfg.learning_starts, cfg.batch_size)
+    ups = cfg.updates_per_step
+
+    def updates_for(n_steps: float) -> float:
+        return max(0.0, n_steps - learn_from + 1) * ups
+
+    rounds = count_test_rounds(sch.episodes, sch.test_every_episodes)
+    tests = rounds * sch.test_starts * len(spec.test_tracks)
+    per_round = (1 + int(sch.save_test_checkpoints)) * rates.checkpoint_s
+    t_step, t_upd = rates.env_step.mean_s, rates.update.mean_s
+    fixed = rates.setup_s if fixed_s is None else fixed_s
+    cpu = (fixed + steps * t_step + updates_for(steps) * t_upd
+           + tests * rates.test_episode_s + rounds * per_round)  # fmt: skip
+    learning = steps > learn_from
+    d_length = sch.episodes * (t_step + (ups * t_upd if learning else 0.0))
+    var = sum(x * x for x in (
+        steps * _finite(rates.env_step.se_s), updates_for(steps) * _finite(rates.update.se_s),
+        d_length * _finite(rates.episode_steps_se) if length < sch.max_steps else 0.0,
+    ))  # fmt: skip
+    full = float(sch.episodes * sch.max_steps)
+    cpu_max = (fixed + full * t_step + updates_for(full) * t_upd
+               + tests * max(rates.test_episode_s, sch.test_max_steps * rates.test_step_s)
+               + rounds * per_round)  # fmt: skip
+    return JobCost(steps, updates_for(steps), tests, cpu, math.sqrt(var), cpu_max)
+
+
+def _finite(x: float) -> float:
+    return x if math.isfinite(x) else 0.0
+
+
+@dataclass
+class PartCost:
+    """One part: its jobs (known or at most promoted), their cost and the assumption made."""
+
+    part: str
+    position: int
+    source: str | None
+    jobs: list[JobCost] = field(default_factory=list)
+    baselines_s: list[float] = field(default_factory=list)
+    assumed: str = ""
+
+    @property
+    def cpu_s(self) -> float:
+        return sum(j.cpu_s for j in self.jobs) + sum(self.baselines_s)
+
+    def summary(self) -> dict[str, Any]:
+        se = math.sqrt(sum(j.cpu_s_se**2 for j in self.jobs))
+        cpu = self.cpu_s
+        return {
+            "part": self.part, "jobs": len(self.jobs), "baselines": len(self.baselines_s),
+            "env_steps": sum(j.env_steps for j in self.jobs),
+            "updates": sum(j.updates for j in self.jobs),
+            "cpu_s": cpu, "cpu_s_low": max(0.0, cpu - Z95 * se), "cpu_s_high": cpu + Z95 * se,
+            "cpu_s_max": sum(j.cpu_s_max for j in self.jobs) + sum(self.baselines_s),
+            "cpu_h": cpu / 3600.0, "promoted_from": self.source, "assumed": self.assumed,
+        }  # fmt: skip
+
+
+def simulate_wall(parts: list[PartCost], slots: int, start_s: float = 0.0,
+                  per_worker_s: float = 0.0) -> float:
+    """Wall seconds to run every part on ``slots`` workers, as the scheduler orders jobs:
+    parts by position, long jobs first, baselines after the part's training jobs; a promoted
+    part once its source part's last job ended. Each slot pays ``per_worker_s`` (imports) once."""
+    closed: dict[str, float] = {}
+    free = [(start_s, k, False) for k in range(max(1, slots))]
+    heapq.heapify(free)
+    for part in sorted(parts, key=lambda p: p.position):
+        avail = closed.get(part.source, start_s) if part.source else start_s
+        durations = sorted((j.cpu_s for j in part.jobs), reverse=True) + list(part.baselines_s)
+        end = avail
+        for seconds in durations:
+            t, k, paid = heapq.heappop(free)
+            finish = max(t, avail) + (0.0 if paid else per_worker_s) + seconds
+            end = max(end, finish)
+            heapq.heappush(free, (finish, k, True))
+        closed[part.part] = end
+    return max(closed.values(), default=start_s)
+
+
+@dataclass
+class Estimate:
+    """The whole estimate, as ``run --dry-run --estimate`` prints it and the results keep it."""
+
+    parts: list[PartCost]
+    workers: int
+    cluster_cpus: int | None
+    worker: WorkerStart
+    contention: float
+    """Measured slow-down of a worker when the run's workers share this machine's cores."""
+    calibration_s: float
+    rates: dict[str, dict[str, Any]]
+
+    def to_json(self) -> dict[str, Any]:
+        per_worker = self.worker.start_s + self.worker.first_job_s - self.worker.next_job_s
+        rows = [p.summary() for p in self.parts]
+        left = self.workers
+        for row in rows:  # each worker pays its start once, in the first part it serves
+            starts = min(left, row["jobs"] + row["baselines"])
+            left -= starts
+            for key in ("cpu_s", "cpu_s_low", "cpu_s_high", "cpu_s_max"):
+                row[key] = (row[key] + starts * per_worker) * self.contention
+            row["cpu_h"] = row["cpu_s"] / 3600.0
+        cpu = sum(r["cpu_s"] for r in rows)
+        se = math.sqrt(sum(j.cpu_s_se**2 for p in self.parts for j in p.jobs))
+        scaled = [PartCost(p.part, p.position, p.source,
+                           [j.scaled(self.contention) for j in p.jobs],
+                           [b * self.contention for b in p.baselines_s]) for p in self.parts]
+        wall = simulate_wall(scaled, self.workers, per_worker_s=per_worker * self.contention)
+        out: dict[str, Any] = {
+            "parts": rows,
+            "total": {
+                "jobs": sum(r["jobs"] for r in rows),
+                "baselines": sum(r["baselines"] for r in rows),
+                "env_steps": sum(r["env_steps"] for r in rows),
+                "updates": sum(r["updates"] for r in rows),
+                "cpu_s": cpu, "cpu_s_low": sum(r["cpu_s_low"] for r in rows),
+                "cpu_s_high": sum(r["cpu_s_high"] for r in rows),
+                "cpu_s_max": sum(r["cpu_s_max"] for r in rows),
+                "cpu_h": cpu / 3600.0,
+                "wall_s": wall, "workers": self.workers,
+                "wall_s_low": wall * max(0.0, 1 - Z95 * se / cpu) if cpu else wall,
+                "wall_s_high": wall * (1 + Z95 * se / cpu) if cpu else wall,
+                "contention": self.contention,
+            },
+            "worker": self.worker.to_json(), "calibration_s": self.calibration_s,
+            "rates": self.rates,
+            "model": "steps = episodes x measured exploring episode length; updates per step "
+                     "after learning starts; tests at the untrained actor's length; cpu_s_max: "
+                     "every episode and test to its step limit",
+        }  # fmt: skip
+        if self.cluster_cpus:
+            out["total"]["cluster_cpus"] = self.cluster_cpus
+            out["total"]["cluster_wall_s"] = simulate_wall(
+                self.parts, self.cluster_cpus, start_s=RAY_INIT_S,
+                per_worker_s=per_worker)
+        return out
+
+
+RateSource = Callable[[RunSpec], Rates]
+
+
+def rate_key(spec: RunSpec) -> str:
+    """Specs that cost the same per step share one measurement: the agent, the env settings,
+    the first train track and LAC (the observation size)."""
+    return "|".join([spec.agent.model_dump_json(), spec.env.model_dump_json(),
+                     spec.train_tracks[0], str(spec.lac), spec.test_tracks[0]])
+
+
+def as_dict(rates: Rates) -> dict[str, Any]:
+    return asdict(rates)

@@ -1,0 +1,195 @@
+"""Claims: each verdict's numbers on hand-computed synthetic results, the claims file's errors,
+and a user-declared claim through ``formula-tourney report``."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from report_fixtures import build_tournament
+
+from formula_tourney.claims.schema import Claim, shipped_set
+from formula_tourney.cli import main
+from formula_tourney.errors import UserInputError
+from formula_tourney.report import claims_profile
+from formula_tourney.report.claims import evaluate
+from formula_tourney.report.claims_load import load_claims_file, resolve_claims
+from formula_tourney.report.claims_stats import compare_scores, overall
+from formula_tourney.report.load import load_tournament
+from formula_tourney.report.paper_tables import Context
+from formula_tourney.tourney.spec import parse_spec
+
+E2 = 2.0 * math.exp(-2.0)  # the fixture template's learning term at episode 300
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    base = tmp_path_factory.mktemp("results")
+    build_tournament(base)
+    return base
+
+
+@pytest.fixture(scope="module")
+def ctx(results: Path) -> Context:
+    return Context.build(load_tournament(results / "fixture-cup"))
+
+
+def cli(*args: str) -> int:
+    """``formula-tourney ARGS``'s exit code."""
+    try:
+        main(list(args))
+    except SystemExit as exc:
+        return int(exc.code or 0)
+    return 0
+
+
+def claim(**kw) -> Claim:
+    return Claim.model_validate({"id": "c", "statement": "s", **kw})
+
+
+def test_two_samples_by_hand() -> None:
+    st = compare_scores([1.0, 2.0, 3.0], [0.0, 0.5, 1.0])
+    assert st.effect == pytest.approx(1.5)
+    # pairs A > B: 1 beats 0 and 0.5 and ties 1 (2.5), 2 and 3 beat all three: 8.5 of 9
+    assert st.prob == pytest.approx(8.5 / 9)
+    # pooled variance (2*1 + 2*0.25) / 4 = 0.625; 2 (1.96 + 0.8416)^2 0.625 / 1.5^2 = 4.36 -> 5
+    assert st.seeds_needed == 5
+    assert 0.0 < st.effect_low < 1.5 < st.effect_high and st.verdict == "supported"
+
+
+def test_against_a_bot_the_bot_is_a_constant() -> None:
+    laps = [27.1, 27.4, 27.2]
+    st = compare_scores([-x for x in laps], [-28.57], b_fixed=True)
+    assert st.effect == pytest.approx(28.57 - np.mean(laps))
+    assert st.prob == 1.0 and st.prob_low == 1.0 and st.verdict == "supported"
+    assert st.n_a == 3 and st.n_b == 1
+    # one-sample rule: (1.96 + 0.8416)^2 var / d^2 with var 0.0233, d 1.337 -> 0.10 -> 2
+    assert st.seeds_needed == 2
+    with pytest.raises(ValueError):
+        compare_scores([1.0], [1.0, 2.0], b_fixed=True)
+
+
+def test_runs_without_a_clean_lap_lose_and_decide_by_probability() -> None:
+    st = compare_scores([-math.inf, -math.inf], [-30.0, -31.0])
+    assert math.isnan(st.effect) and st.prob == 0.0 and st.verdict == "contradicted"
+    st = compare_scores([-29.0, -math.inf], [-30.0, -31.0])
+    # 29 beats both; the DNF loses both: P = 2/4, effect over finishers 30.5 - 29
+    assert st.prob == pytest.approx(0.5) and st.effect == pytest.approx(1.5)
+    assert st.finite_a == 1 and st.verdict == "inconclusive"  # one finisher: no interval
+
+
+def test_no_runs_is_no_data_and_overall_rules() -> None:
+    assert compare_scores([], [1.0, 2.0]).verdict == "no data"
+    assert overall(["supported", "supported"]) == "supported"
+    assert overall(["supported", "inconclusive"]) == "inconclusive"
+    assert overall(["supported", "contradicted"]) == "contradicted"
+    assert overall(["no data", "no data"]) == "no data"
+
+
+def test_user_claim_on_the_fixture_by_hand(ctx: Context) -> None:
+    """win1 vs win4 in part1 on the oval: win1's best laps are written by hand (27.1, 27.4,
+    27.2), win4's are the template's 26.5 + 0.3 + 2 e^-2 + 0.1 seed."""
+    res = evaluate(ctx, claim(kind="faster", track="oval",
+                              a={"part": "part1", "entrant": "win1"},
+                              b={"part": "part1", "entrant": "win4"}))
+    (comp,) = res.comparisons
+    win4 = [26.8 + E2 + 0.1 * s for s in range(3)]
+    assert sorted(-x for x in comp.a_scores) == pytest.approx([27.1, 27.2, 27.4])
+    assert sorted(-x for x in comp.b_scores) == pytest.approx(win4)
+    assert comp.stats.effect == pytest.approx(np.mean(win4) - np.mean([27.1, 27.4, 27.2]))
+    # 27.1 beats 27.17 and 27.27; 27.2 beats 27.27; 27.4 none: 3 of 9
+    assert comp.stats.prob == pytest.approx(3 / 9)
+    assert res.verdict == comp.stats.verdict == "inconclusive"
+
+
+def test_bot_claim_and_finish_claim_on_the_fixture(ctx: Context) -> None:
+    res = evaluate(ctx, claim(kind="faster", track="oval", a={"part": "part1", "entrant":
+                                                                "win1"}, b={"bot": "follower"}))
+    assert res.comparisons[0].stats.effect == pytest.approx(28.57 - np.mean([27.1, 27.4, 27.2]))
+    assert res.verdict == "supported"
+    # per1m-rc of part3 laps both unseen tracks cleanly (100 %); per1m-mot's one finished run
+    # never laps flowing (50 %); its second run is still running and has no result
+    res = evaluate(ctx, claim(kind="finishes_more", a={"part": "part3", "entrant": "per1m-rc"},
+                              b={"part": "part3", "entrant": "per1m-mot"}))
+    st = res.comparisons[0].stats
+    assert res.comparisons[0].a_scores == [100.0, 100.0]
+    assert res.comparisons[0].b_scores == [50.0]
+    assert st.effect == pytest.approx(50.0) and st.prob == 1.0
+    assert res.verdict == "inconclusive"  # one run of B: no interval at this sample size
+
+
+def test_reward_claim_split_and_missing_runs(ctx: Context) -> None:
+    paper = {c.id: c for c in shipped_set("paper").resolved()}
+    res = evaluate(ctx, paper["paper-6"])  # the fixture's ablation: ceilings 1000 vs 800
+    assert res.comparisons[0].a_runs == ["ablation/win1/seed-0", "ablation/win1/seed-1"]
+    assert res.comparisons[0].stats.effect > 150.0 and res.verdict == "supported"
+    res = evaluate(ctx, claim(kind="faster", track="technical", split_b="family",
+                              a={"part": "part2", "entrant": "per1m-rc"},
+                              b={"part": "part2"}))
+    assert [c.label for c in res.comparisons] == ["vs family win", "vs family per"]
+    res = evaluate(ctx, claim(kind="faster", track="oval", a={"variant": "WIN9"},
+                              b={"bot": "follower"}))
+    assert res.verdict == "no data"
+    assert any("no run of this tournament matches" in n for n in res.notes)
+
+
+def test_performance_profile_by_hand() -> None:
+    taus = np.array([1.0, 1.05, 1.1])
+    assert claims_profile.profile(np.array([1.0, 1.1, math.inf]), taus).tolist() == \
+        pytest.approx([1 / 3, 1 / 3, 2 / 3])
+    mid, low, high = claims_profile.profile_band(np.array([1.0, 1.1, math.inf]), taus)
+    assert np.all(low <= mid) and np.all(mid <= high)
+
+
+def test_claims_file_errors_name_file_line_and_allowed(tmp_path: Path) -> None:
+    path = tmp_path / "c.toml"
+    path.write_text('[[claim]]\nid = "x"\nstatement = "s"\nkind = "faster"\n'
+                    'a = { famly = "PER" }\nb = { bot = "follower" }\n')
+    with pytest.raises(UserInputError) as info:
+        load_claims_file(path)
+    assert f"{path}:5: claim[0].a.famly: unknown key; allowed keys: label, part" in str(info.value)
+    path.write_text('[[claim]]\nid = "x"\nstatement = "s"\nkind = "slower"\n'
+                    'a = {}\nb = { bot = "follower" }\n')
+    with pytest.raises(UserInputError, match=rf"{path}:4: claim\[0\].kind: Input should be "
+                       "'faster', 'finishes_more' or 'higher_reward'"):
+        load_claims_file(path)
+    path.write_text('include = ["papr"]\n')
+    with pytest.raises(UserInputError, match="unknown claim set 'papr'; allowed values: paper"):
+        load_claims_file(path)
+
+
+def test_tournament_claims_table_is_validated_with_the_file(tmp_path: Path) -> None:
+    text = ('name = "t"\n[[parts]]\nname = "p1"\nentrants = ["WIN1"]\ntrain_tracks = ["oval"]\n'
+            '[claims]\ninclude = ["paper"]\n[[claims.claim]]\nid = "mine"\nstatement = "s"\n'
+            'kind = "faster"\ntrack = "oval"\na = { variant = "WIN1", lacc = true }\n'
+            'b = { bot = "follower" }\n')
+    with pytest.raises(UserInputError, match=r"t.toml:13: claims.claim\[0\].a.lacc: unknown "
+                       "key; allowed keys: label, part"):
+        parse_spec(text, tmp_path / "t.toml")
+    spec = parse_spec(text.replace("lacc", "lac"), tmp_path / "t.toml")
+    claims, origin = resolve_claims([], {"spec": spec.model_dump_json()})
+    assert [c.id for c in claims][-1] == "mine" and len(claims) == 9
+    assert origin == "the tournament file's [claims]"
+
+
+def test_user_declared_claim_end_to_end(results: Path, tmp_path: Path,
+                                        capsys: pytest.CaptureFixture) -> None:
+    path = tmp_path / "mine.claims.toml"
+    path.write_text('[[claim]]\nid = "win1-beats-bot"\nstatement = "win1 beats the bot"\n'
+                    'kind = "faster"\ntrack = "oval"\n'
+                    'a = { part = "part1", entrant = "win1" }\nb = { bot = "follower" }\n')
+    assert cli("report", "-t", "fixture-cup", "--results", str(results), "--claims",
+               str(path), "--json") == 0
+    doc = json.loads(capsys.readouterr().out)
+    (rec,) = doc["tables"]["claims"]["records"]
+    assert rec["id"] == "win1-beats-bot" and rec["verdict"] == "supported"
+    assert rec["comparisons"][0]["effect"] == pytest.approx(28.57 - np.mean([27.1, 27.4, 27.2]))
+    args = ["report", "-t", "fixture-cup", "--results", str(results), "--markdown"]
+    assert cli(*args, "--claims", str(path)) == 0
+    assert "win1-beats-bot (supported): win1 beats the bot" in capsys.readouterr().out
+    path.write_text('[[claim]]\nid = "x"\nstatement = "s"\nkind = "fast"\na = {}\nb = {}\n')
+    assert cli(*args, "--claims", str(path)) == 2
+    assert f"error: {path}:4: claim[0].kind" in capsys.readouterr().err

@@ -1,0 +1,92 @@
+"""The cost estimate: the job model and the wall-time replay by hand, and the measurement on a
+real tiny run specification."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from formula_tourney.tourney.estimate import (
+    Estimate,
+    JobCost,
+    PartCost,
+    count_test_rounds,
+    job_cost,
+    simulate_wall,
+)
+from formula_tourney.tourney.estimate_calibrate import Measured, Rates, WorkerStart, calibrate
+from formula_tourney.training.spec import build_run_spec
+
+
+def rates(**kw) -> Rates:
+    base = dict(setup_s=0.5, env_step=Measured(1e-4, 1e-5, 1000), update=Measured(1e-3, 1e-4, 100),
+                test_episode_s=0.2, test_step_s=1e-4, checkpoint_s=0.01, episode_steps_mean=50.0,
+                episode_steps_se=5.0, episodes_seen=20)
+    return Rates(**{**base, **kw})
+
+
+def spec(**schedule):
+    return build_run_spec(
+        variant="WIN1", overrides={"hidden": [32, 32], "batch_size": 16, "learning_starts": 100},
+        train_tracks=["oval"], schedule={"episodes": 10, "max_steps": 100,
+                                         "test_every_episodes": 4, "test_starts": 2,
+                                         "test_max_steps": 300, **schedule},
+        device="cpu")
+
+
+def test_rounds_by_hand() -> None:
+    assert (count_test_rounds(10, 4), count_test_rounds(8, 4), count_test_rounds(1, 4)) == (3, 2, 1)
+
+
+def test_job_cost_by_hand() -> None:
+    cost = job_cost(spec(), rates())
+    # 10 episodes x 50 steps; updates from step max(100, 16) = 100 on: 401; 3 test rounds x 2
+    assert cost.env_steps == 500.0 and cost.updates == 401.0 and cost.test_episodes == 6
+    expected = 0.5 + 500 * 1e-4 + 401 * 1e-3 + 6 * 0.2 + 3 * 0.01
+    assert cost.cpu_s == pytest.approx(expected)
+    # se: steps 500 x 1e-5, updates 401 x 1e-4, length 10 x (1e-4 + 1e-3) x 5
+    se = math.sqrt((500 * 1e-5) ** 2 + (401 * 1e-4) ** 2 + (10 * 1.1e-3 * 5) ** 2)
+    assert cost.cpu_s_se == pytest.approx(se)
+    # the bound: every episode to 100 steps (1000 steps, 901 updates), tests to 300 steps
+    bound = 0.5 + 1000 * 1e-4 + 901 * 1e-3 + 6 * max(0.2, 300 * 1e-4) + 3 * 0.01
+    assert cost.cpu_s_max == pytest.approx(bound)
+    assert job_cost(spec(), rates(), fixed_s=2.0).cpu_s == pytest.approx(expected + 1.5)
+    # episodes never longer than max_steps
+    assert job_cost(spec(), rates(episode_steps_mean=500.0)).env_steps == 1000.0
+
+
+def job(seconds: float) -> JobCost:
+    return JobCost(0.0, 0.0, 0, seconds, 0.0, seconds)
+
+
+def test_wall_replays_the_scheduler() -> None:
+    p1 = PartCost("p1", 0, None, [job(10), job(10), job(10)])
+    p2 = PartCost("p2", 1, "p1", [job(4)])
+    # 2 slots: 10 + 10 in parallel, the third 10 after: p1 closes at 20; p2 after it: 24
+    assert simulate_wall([p1, p2], 2) == pytest.approx(24.0)
+    # every slot pays its start once; a Ray cluster starts later
+    assert simulate_wall([p1, p2], 2, per_worker_s=3.0) == pytest.approx(27.0)
+    assert simulate_wall([p1, p2], 4, start_s=13.5) == pytest.approx(13.5 + 14.0)
+    # a part with declared entrants does not wait for the one before it
+    p3 = PartCost("p3", 2, None, [job(1)])
+    assert simulate_wall([p1, p3], 2) == pytest.approx(20.0)
+
+
+def test_estimate_totals_with_worker_start_and_contention() -> None:
+    parts = [PartCost("p1", 0, None, [job(10), job(10)], baselines_s=[2.0])]
+    est = Estimate(parts, workers=2, cluster_cpus=4, worker=WorkerStart(3.0, 1.5, 0.5),
+                   contention=2.0, calibration_s=1.0, rates={}).to_json()
+    # (22 + 2 starts x (3 + 1.5 - 0.5)) x 2
+    assert est["total"]["cpu_s"] == pytest.approx((22 + 2 * 4.0) * 2)
+    assert est["total"]["jobs"] == 2 and est["total"]["baselines"] == 1
+    # slots: (4 + 10) x 2 each = 28, then the baseline 2 x 2: 32
+    assert est["total"]["wall_s"] == pytest.approx(32.0)
+    assert est["total"]["cluster_wall_s"] > 13.5
+
+
+def test_calibrate_measures_a_real_spec() -> None:
+    measured = calibrate(spec(), seconds=0.3)
+    assert measured.env_step.mean_s > 0 and measured.update.mean_s > 0
+    assert measured.env_step.samples >= 300 and measured.update.samples >= 30
+    assert 1 <= measured.episode_steps_mean <= 100 and measured.test_episode_s > 0
