@@ -56,6 +56,20 @@ def test_job_cost_by_hand() -> None:
     assert job_cost(spec(), rates(episode_steps_mean=500.0)).env_steps == 1000.0
 
 
+def test_job_cost_under_an_env_step_budget_by_hand() -> None:
+    """A 300-step budget on 10 x 50-step episodes: 300 steps in 6 episodes, 201 updates, tests
+    after episodes 4 and 6 (2 rounds x 2 starts); the episode length's spread no longer moves
+    the steps; the bound stops one max_steps episode past the budget (400 steps)."""
+    cost = job_cost(spec(env_steps=300), rates())
+    assert cost.env_steps == 300.0 and cost.updates == 201.0 and cost.test_episodes == 4
+    assert cost.cpu_s == pytest.approx(0.5 + 300 * 1e-4 + 201 * 1e-3 + 4 * 0.2 + 2 * 0.01)
+    assert cost.cpu_s_se == pytest.approx(math.sqrt((300 * 1e-5) ** 2 + (201 * 1e-4) ** 2))
+    bound = 0.5 + 400 * 1e-4 + 301 * 1e-3 + 4 * max(0.2, 300 * 1e-4) + 2 * 0.01
+    assert cost.cpu_s_max == pytest.approx(bound)
+    # a budget the episodes never reach changes nothing
+    assert job_cost(spec(env_steps=5000), rates()).cpu_s == job_cost(spec(), rates()).cpu_s
+
+
 def job(seconds: float) -> JobCost:
     return JobCost(0.0, 0.0, 0, seconds, 0.0, seconds)
 

@@ -4,6 +4,7 @@ The model of one training job, from its run specification and the rates measured
 (``tourney.estimate_calibrate``)::
 
     steps    = episodes x L            L: mean exploring episode length measured, <= max_steps
+               (at most ``env_steps``, the schedule's budget; then episodes = env_steps / L)
     updates  = max(0, steps - max(learning_starts, batch_size) + 1) x updates_per_step
     tests    = ceil(episodes / test_every_episodes) rounds x test_starts x test tracks
     cpu_s    = setup + steps x t_step + updates x t_update + tests x t_test_episode
@@ -65,13 +66,18 @@ def job_cost(spec: RunSpec, rates: Rates, fixed_s: float | None = None) -> JobCo
     sch, cfg = spec.schedule, spec.agent
     length = min(float(rates.episode_steps_mean), float(sch.max_steps))
     steps = sch.episodes * length
+    episodes = sch.episodes  # episodes the run drives: fewer under an env-step budget
+    capped = sch.env_steps is not None and steps > sch.env_steps
+    if capped:
+        steps = float(sch.env_steps)
+        episodes = min(sch.episodes, math.ceil(sch.env_steps / max(length, 1.0)))
     learn_from = max(cfg.learning_starts, cfg.batch_size)
     ups = cfg.updates_per_step
 
     def updates_for(n_steps: float) -> float:
         return max(0.0, n_steps - learn_from + 1) * ups
 
-    rounds = count_test_rounds(sch.episodes, sch.test_every_episodes)
+    rounds = count_test_rounds(episodes, sch.test_every_episodes)
     tests = rounds * sch.test_starts * len(spec.test_tracks)
     per_round = (1 + int(sch.save_test_checkpoints)) * rates.checkpoint_s
     t_step, t_upd = rates.env_step.mean_s, rates.update.mean_s
@@ -79,12 +85,15 @@ def job_cost(spec: RunSpec, rates: Rates, fixed_s: float | None = None) -> JobCo
     cpu = (fixed + steps * t_step + updates_for(steps) * t_upd
            + tests * rates.test_episode_s + rounds * per_round)  # fmt: skip
     learning = steps > learn_from
-    d_length = sch.episodes * (t_step + (ups * t_upd if learning else 0.0))
+    d_length = episodes * (t_step + (ups * t_upd if learning else 0.0))
     var = sum(x * x for x in (
         steps * _finite(rates.env_step.se_s), updates_for(steps) * _finite(rates.update.se_s),
-        d_length * _finite(rates.episode_steps_se) if length < sch.max_steps else 0.0,
+        d_length * _finite(rates.episode_steps_se) if length < sch.max_steps and not capped
+        else 0.0,
     ))  # fmt: skip
     full = float(sch.episodes * sch.max_steps)
+    if sch.env_steps is not None:  # the run ends at the first episode end past the budget
+        full = min(full, float(sch.env_steps + sch.max_steps))
     cpu_max = (fixed + full * t_step + updates_for(full) * t_upd
                + tests * max(rates.test_episode_s, sch.test_max_steps * rates.test_step_s)
                + rounds * per_round)  # fmt: skip
