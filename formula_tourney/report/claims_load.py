@@ -10,7 +10,6 @@ tournament file's: ``file:line: key: problem`` with the allowed keys or values (
 from __future__ import annotations
 
 import json
-import tomllib
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -18,7 +17,7 @@ from pydantic import ValidationError
 
 from formula_tourney.claims.schema import SHIPPED_SETS, Claim, ClaimSet, shipped_set
 from formula_tourney.errors import UserInputError
-from formula_tourney.tourney.spec import describe_errors, read_spec_text
+from formula_tourney.tourney.spec import describe_errors, parse_toml, read_spec_text
 
 DEFAULT_SET = "paper"
 """The claims a report checks when neither ``--claims`` nor the tournament names any."""
@@ -28,10 +27,7 @@ def load_claims_file(path: str | Path) -> ClaimSet:
     """A claims file (``include = [...]`` and ``[[claim]]`` tables), validated whole."""
     path = Path(path)
     text = read_spec_text(path, "claims")
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise UserInputError(f"{path}: not valid TOML: {err}") from None
+    raw = parse_toml(text, path)
     try:
         return ClaimSet.model_validate(raw)
     except ValidationError as err:

@@ -599,12 +599,18 @@ def read_spec_text(path: Path, what: str) -> str:
     return read_user_text(path, what)
 
 
-def parse_spec(text: str, path: Path) -> Tournament:
-    """Validate tournament TOML text; ``path`` only names the file in error messages."""
+def parse_toml(text: str, path: Path) -> dict[str, Any]:
+    """TOML text as a dict; bad TOML is one line naming ``path`` (tournament, tune and claims
+    files all read through here)."""
     try:
-        raw = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise UserInputError(f"{path}: not valid TOML: {err}") from None
+
+
+def parse_spec(text: str, path: Path) -> Tournament:
+    """Validate tournament TOML text; ``path`` only names the file in error messages."""
+    raw = parse_toml(text, path)
     try:
         spec = Tournament.model_validate(raw)
     except ValidationError as err:

@@ -11,7 +11,6 @@ trial scores: its best clean test lap (the default), or the CPU-seconds it takes
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 from typing import Any, Literal
 
@@ -26,6 +25,7 @@ from formula_tourney.tourney.spec import (
     Setup,
     describe_errors,
     error_at,
+    parse_toml,
     read_spec_text,
 )
 from formula_tourney.training.spec import RunSpec, build_run_spec
@@ -172,10 +172,7 @@ def load_tune_spec(path: str | Path) -> tuple[TuneSpec, str]:
     """Read and validate a tune file (search keys checked against AgentConfig's fields)."""
     path = Path(path)
     text = read_spec_text(path, "tune")
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise UserInputError(f"{path}: not valid TOML: {err}") from None
+    raw = parse_toml(text, path)
     for key in raw:
         if key not in TuneSpec.model_fields:
             raise error_at(path, text, (key,), "unknown key; allowed keys: "
