@@ -3,11 +3,13 @@ and a user-declared claim through ``formula-tourney report``."""
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from report_fixtures import build_tournament
 
@@ -20,7 +22,10 @@ from formula_tourney.report.claims_load import load_claims_file, resolve_claims
 from formula_tourney.report.claims_stats import compare_scores, overall
 from formula_tourney.report.load import load_tournament
 from formula_tourney.report.paper_tables import Context
+from formula_tourney.results.folder import JobFolder
 from formula_tourney.tourney.spec import parse_spec
+from formula_tourney.training.loop import train
+from formula_tourney.training.spec import build_run_spec
 
 E2 = 2.0 * math.exp(-2.0)  # the fixture template's learning term at episode 300
 
@@ -193,3 +198,55 @@ def test_user_declared_claim_end_to_end(results: Path, tmp_path: Path,
     path.write_text('[[claim]]\nid = "x"\nstatement = "s"\nkind = "fast"\na = {}\nb = {}\n')
     assert cli(*args, "--claims", str(path)) == 2
     assert f"error: {path}:4: claim[0].kind" in capsys.readouterr().err
+
+
+def tiny_spec(**schedule):
+    base = {"episodes": 6, "max_steps": 60, "test_every_episodes": 2, "test_starts": 1,
+            "test_max_steps": 40}  # fmt: skip
+    return build_run_spec(variant="WIN1", train_tracks=["oval"], seed=7, device="cpu",
+                          overrides={"batch_size": 16, "learning_starts": 20,
+                                     "hidden": (16, 16)},
+                          schedule={**base, **schedule})  # fmt: skip
+
+
+def test_tests_never_change_the_training(tmp_path: Path) -> None:
+    """Two real runs that differ only in their tests (how often, from how many starts, how
+    long, on which tracks, with checkpoints) train the same agent: the same episodes, rewards
+    and updates; their training digests agree and their full digests do not."""
+    a = tiny_spec()
+    b = tiny_spec(test_every_episodes=3, test_starts=2, test_max_steps=25,
+                  save_test_checkpoints=True)
+    b = b.model_copy(update={"test_tracks": ("oval", "technical")})
+    assert a.training_digest() == b.training_digest() and a.digest() != b.digest()
+    train(a, tmp_path / "a")
+    train(b, tmp_path / "b")
+    ea = pd.read_parquet(JobFolder(tmp_path / "a").table_path("episodes"))
+    eb = pd.read_parquet(JobFolder(tmp_path / "b").table_path("episodes"))
+    cols = ["episode", "reward", "steps", "env_steps", "updates", "termination"]
+    pd.testing.assert_frame_equal(ea[cols], eb[cols])
+    # what the training depends on does change it
+    assert tiny_spec().model_copy(update={"seed": 8}).training_digest() != a.training_digest()
+    assert tiny_spec(max_steps=61).training_digest() != a.training_digest()
+
+
+def test_a_run_repeated_in_another_part_counts_once(ctx: Context) -> None:
+    """part1's win1 seeds 0 and 1 given the same training (one spec, other tests): A keeps
+    two of its three runs and says why; the effect is computed on those two."""
+    data = copy.deepcopy(ctx.data)
+    same = tiny_spec().to_json()
+    data.configs["part1/win1/seed-0"] = same
+    data.configs["part1/win1/seed-1"] = {**same, "schedule": {**same["schedule"],
+                                                               "test_starts": 3}}
+    dup_ctx = Context.build(data)
+    res = evaluate(dup_ctx, claim(kind="faster", track="oval",
+                                  a={"part": "part1", "entrant": "win1"},
+                                  b={"part": "part1", "entrant": "win4"}))
+    (comp,) = res.comparisons
+    assert comp.a_runs == ["part1/win1/seed-0", "part1/win1/seed-2"]
+    assert "A: 1 run(s) repeating another run's training" in comp.note
+    # B drops a run that repeats one of A's
+    data.configs["part1/win4/seed-2"] = same
+    res = evaluate(Context.build(data), claim(kind="faster", track="oval",
+                                              a={"part": "part1", "entrant": "win1"},
+                                              b={"part": "part1", "entrant": "win4"}))
+    assert res.comparisons[0].b_runs == ["part1/win4/seed-0", "part1/win4/seed-1"]

@@ -11,6 +11,8 @@ from formula_tourney.tourney.estimate import (
     Estimate,
     JobCost,
     PartCost,
+    candidates_cost,
+    combined_se,
     count_test_rounds,
     job_cost,
     simulate_wall,
@@ -72,6 +74,50 @@ def test_job_cost_under_an_env_step_budget_by_hand() -> None:
 
 def job(seconds: float) -> JobCost:
     return JobCost(0.0, 0.0, 0, seconds, 0.0, seconds)
+
+
+def costed(seconds: float, se: float, group: str = "") -> JobCost:
+    return JobCost(0.0, 0.0, 0, seconds, se, seconds, group)
+
+
+def test_errors_of_one_measurement_add_linearly() -> None:
+    """Five seeds priced from one measurement (se 2 each) err together: 5 x 2 = 10, not
+    sqrt(5) x 2; a second measurement's job (se 3) adds in quadrature: sqrt(10^2 + 3^2)."""
+    seeds = [costed(100.0, 2.0, "p/WIN1#0")] * 5
+    assert combined_se(seeds) == pytest.approx(10.0)
+    assert combined_se([*seeds, costed(50.0, 3.0, "p/LSTM4#0")]) == pytest.approx(
+        math.sqrt(10.0**2 + 3.0**2))
+    # ungrouped jobs are independent
+    assert combined_se([costed(1.0, 3.0), costed(1.0, 4.0)]) == pytest.approx(5.0)
+    # the part's band: 1.96 x 10 either side
+    row = PartCost("p", 0, None, seeds).summary()
+    assert row["cpu_s"] == pytest.approx(500.0)
+    assert (row["cpu_s_low"], row["cpu_s_high"]) == pytest.approx((500 - 19.6, 500 + 19.6))
+
+
+def test_promoted_jobs_by_family_and_by_top_k() -> None:
+    """Families WIN (WIN1 100 s, WIN4 200 s) and LSTM (LSTM4 1 000 s): one per family comes,
+    each at its family's mean (150 + 1 000), the band down to WIN1 (-50) and up to WIN4 (+50).
+    Top 1 of the three variants: the mean of the three (433.3 s), from 100 to 1 000 s."""
+    units = {"WIN": [costed(100.0, 0.0), costed(200.0, 0.0)], "LSTM": [costed(1000.0, 0.0)]}
+    jobs = candidates_cost(units, 2, "r2#0")
+    assert [j.cpu_s for j in jobs] == pytest.approx([150.0, 1000.0])
+    row = PartCost("r2", 1, "r1", jobs).summary()
+    assert (row["cpu_s_low"], row["cpu_s"], row["cpu_s_high"]) == pytest.approx(
+        (1100.0, 1150.0, 1200.0))
+    by_variant = {"WIN1": [costed(100.0, 0.0)], "WIN4": [costed(200.0, 0.0)],
+                  "LSTM4": [costed(1000.0, 0.0)]}  # fmt: skip
+    (top,) = candidates_cost(by_variant, 1, "r3#0")
+    row = PartCost("r3", 2, "r2", [top]).summary()
+    assert (row["cpu_s_low"], row["cpu_s"], row["cpu_s_high"]) == pytest.approx(
+        (100.0, 1300.0 / 3, 1000.0))
+    # two of three: the two cheapest (150 mean) to the two dearest (600 mean), x 2 jobs
+    row = PartCost("r3", 2, "r2", candidates_cost(by_variant, 2, "r3#0")).summary()
+    assert (row["cpu_s_low"], row["cpu_s"], row["cpu_s_high"]) == pytest.approx(
+        (300.0, 2600.0 / 3, 1200.0))
+    # the bound (every episode to its limit) is the dearest candidates' too: never below high
+    assert row["cpu_s_max"] == pytest.approx(1200.0) and (
+        PartCost("r2", 1, "r1", jobs).summary()["cpu_s_max"] == pytest.approx(1200.0))
 
 
 def test_wall_replays_the_scheduler() -> None:

@@ -125,10 +125,14 @@ def test_locator_counts_array_tables() -> None:
 
 def test_shipped_tournaments_validate() -> None:
     root = Path(__file__).resolve().parents[1] / "tournaments"
-    for name in ("quick", "study1", "study2"):
+    for name in ("quick", "study1", "study2", "replication", "replication-pilot"):
         spec, text = load_spec(root / f"{name}.toml")
         assert spec.name == name
         assert Planner(spec, root / f"{name}.toml", text, Path("unused")).validate() > 0
+    spec, _ = load_spec(root / "replication.toml")
+    seeds = {p.name: spec.settings(p)["seeds"] for p in spec.parts}
+    assert (seeds["r1-oval"], seeds["r2-technical"], seeds["r3-lac-flowing"],
+            seeds["r5-adopted"]) == (7, 5, 12, 10)  # sized by the pilot (docs/claims.md)
     spec, _ = load_spec(root / "study1.toml")
     assert spec.settings(spec.parts[0])["seeds"] == 10
     assert spec.settings(spec.parts[0])["episodes"] == 500

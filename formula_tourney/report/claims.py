@@ -8,6 +8,10 @@ it lapped cleanly; the highest moving average of its training reward, smoothed l
 figures), and hands the scores to ``report.claims_stats``. B never holds a run of A. A claim
 with ``split_b`` or ``per_track`` is several comparisons with one overall verdict.
 
+A run entered again in another part with the same seed and training settings (only its tests
+differ) trains the same agent step for step: it is one sample, not two, so each side keeps the
+first of the runs sharing a ``RunSpec.training_digest`` and B drops any run A has.
+
 Scores are "higher is better": a lap time enters negated, so every effect is positive when A is
 better (for laps: B's mean best lap minus A's, in seconds).
 """
@@ -23,10 +27,15 @@ import numpy as np
 import pandas as pd
 
 from formula_tourney.claims.schema import Claim, Group
+from formula_tourney.errors import UserInputError
 from formula_tourney.report import claims_stats
 from formula_tourney.report.claims_stats import ClaimStats
 from formula_tourney.report.paper_tables import Context, bot_result
 from formula_tourney.report.plots import moving_average
+from formula_tourney.training.spec import RunSpec
+
+REPEATED = ("run(s) repeating another run's training (same seed and settings, other tests) "
+            "counted once")
 
 UNITS = {"faster": "s", "finishes_more": "% of unseen tracks", "higher_reward": "reward"}
 """Unit of each kind's effect (laps: seconds of mean best lap; finishes: percentage points)."""
@@ -112,6 +121,36 @@ def select_jobs(ctx: Context, group: Group) -> pd.DataFrame:
                       for k, v in (group.settings or {}).items()))  # fmt: skip
         keep.append(ok)
     return jobs.loc[np.asarray(keep, dtype=bool)]
+
+
+def training_key(ctx: Context, job_id: str) -> str:
+    """The run's ``RunSpec.training_digest`` ("" when its config.json has no readable spec)."""
+    spec = ctx.data.configs.get(job_id)
+    if not spec:
+        return ""
+    try:
+        return RunSpec.from_json(spec, job_id).training_digest()
+    except UserInputError:
+        return ""
+
+
+def distinct_runs(ctx: Context, ids: list[str], values: list[float], taken: set[str]
+                  ) -> tuple[list[str], list[float], int]:
+    """The scored runs less those repeating the training of an earlier one (or of one whose
+    digest is in ``taken``), and how many were dropped; ``taken`` gains the kept runs' digests.
+    Scored first, so the repeat kept is one with a result (a run tested on unseen tracks,
+    not its twin tested only where it trained)."""
+    kept_ids, kept_values, dropped = [], [], 0
+    for job_id, value in zip(ids, values, strict=True):
+        key = training_key(ctx, job_id)
+        if key and key in taken:
+            dropped += 1
+            continue
+        if key:
+            taken.add(key)
+        kept_ids.append(job_id)
+        kept_values.append(value)
+    return kept_ids, kept_values, dropped
 
 
 def _pair_key(job: pd.Series, keys: list[str]) -> tuple[Any, ...]:
@@ -209,15 +248,24 @@ def _compare(ctx: Context, claim: Claim, label: str, a_jobs: pd.DataFrame | None
              b_jobs: pd.DataFrame | None, track: str | None) -> Comparison:
     if a_jobs is not None and b_jobs is not None:
         a_jobs, b_jobs = paired(a_jobs, b_jobs, list(claim.pair_on))
+    notes = []
+    taken: set[str] = set()  # after pairing: a repeat in an unpaired part must not win
     a_ids, a_vals, a_fixed = _side(ctx, claim, claim.a, a_jobs, track)
     b_ids, b_vals, b_fixed = _side(ctx, claim, claim.b, b_jobs, track)
+    if not a_fixed:
+        a_ids, a_vals, dropped = distinct_runs(ctx, a_ids, a_vals, taken)
+        if dropped:
+            notes.append(f"A: {dropped} {REPEATED}")
+    if not b_fixed:
+        b_ids, b_vals, dropped = distinct_runs(ctx, b_ids, b_vals, taken)
+        if dropped:
+            notes.append(f"B: {dropped} {REPEATED}")
     st = claims_stats.compare_scores(a_vals, b_vals, a_fixed, b_fixed)
     missing = [name for name, ids in (("A", a_ids), ("B", b_ids)) if not ids]
-    note = ""
     if missing:
         where = f" on {track}" if track else ""
-        note = " and ".join(missing) + f": no runs with a result{where}"
-    return Comparison(label, track, a_ids, b_ids, a_vals, b_vals, st, note)
+        notes.insert(0, " and ".join(missing) + f": no runs with a result{where}")
+    return Comparison(label, track, a_ids, b_ids, a_vals, b_vals, st, "; ".join(notes))
 
 
 def evaluate(ctx: Context, claim: Claim) -> ClaimResult:

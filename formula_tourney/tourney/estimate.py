@@ -11,11 +11,16 @@ The model of one training job, from its run specification and the rates measured
                + rounds x (1 + save_test_checkpoints) x t_checkpoint
 
 The uncertainty (``cpu_s_low``/``cpu_s_high``, about 95 %) propagates the standard errors of
-the rates and of L. It does not cover learning: once an agent laps, its episodes run longer
-(up to max_steps) and so do its tests; ``cpu_s_max`` is that bound (every episode and test to
-its step limit). Baseline drives are timed as they are. A promoted part's entrants are not
-known yet: it is counted with the variants its rule can promote at most (one per family with
-``best_per_family``, at most ``top_k``), each at the mean cost of the variants that could come.
+the rates and of L. Jobs that share one measurement (the seeds of an entrant, the copies of a
+promoted part's job) share its error, so their errors add up linearly; errors of different
+measurements add in quadrature. It does not cover learning: once an agent laps, its episodes
+run longer (up to max_steps) and so do its tests; ``cpu_s_max`` is that bound (every episode and
+test to its step limit). Baseline drives are timed as they are. A promoted part's entrants are
+not known yet: it is counted with the variants its rule can promote at most. With
+``best_per_family`` that is one job per family at the mean cost of that family's variants,
+with the band widened to its cheapest and its dearest variant; under ``top_k`` (fewer than
+could come) each job is at the mean cost of the candidates, and the band runs from the ``k``
+cheapest to the ``k`` dearest.
 
 Wall time replays the scheduler (``tourney.scheduler``): earlier parts first and long jobs
 first within them, a promoted part once its source closed, one job per worker slot, each
@@ -27,7 +32,7 @@ from __future__ import annotations
 import heapq
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 from formula_tourney.tourney.estimate_calibrate import Rates, WorkerStart
@@ -48,11 +53,60 @@ class JobCost:
     cpu_s: float
     cpu_s_se: float
     cpu_s_max: float
+    group: str = ""
+    """The measurement this cost comes from: jobs of one group share its error ("" = its own)."""
+    choice_below_s: float = 0.0
+    choice_above_s: float = 0.0
+    """How much cheaper / dearer the job is if the cheapest / dearest candidate is promoted."""
 
     def scaled(self, factor: float) -> JobCost:
         return JobCost(self.env_steps * factor, self.updates * factor,
                        int(round(self.test_episodes * factor)), self.cpu_s * factor,
-                       self.cpu_s_se * factor, self.cpu_s_max * factor)
+                       self.cpu_s_se * factor, self.cpu_s_max * factor, self.group,
+                       self.choice_below_s * factor, self.choice_above_s * factor)
+
+    def grouped(self, group: str) -> JobCost:
+        return replace(self, group=group)
+
+
+def combined_se(jobs: list[JobCost]) -> float:
+    """The standard error of the jobs' summed cost: linear within a group, quadrature across."""
+    by_group: dict[str, float] = {}
+    for k, job in enumerate(jobs):
+        key = job.group or f"#{k}"
+        by_group[key] = by_group.get(key, 0.0) + job.cpu_s_se
+    return math.sqrt(sum(v * v for v in by_group.values()))
+
+
+def candidates_cost(costs: dict[str, list[JobCost]], count: int, group: str) -> list[JobCost]:
+    """The jobs of a promoted part's setup (one seed) when ``count`` of the candidate units
+    come. A unit is a family (``best_per_family``: its variants' costs) or a variant (a list of
+    one). All units come: one job per unit at its mean, its band from its cheapest to its
+    dearest variant. Fewer come: ``count`` jobs at the mean of the units' means, the band from
+    the ``count`` cheapest to the ``count`` dearest."""
+    units = [(_mean_cost(v), min(c.cpu_s for c in v), max(c.cpu_s for c in v),
+              max(c.cpu_s_max for c in v)) for v in costs.values() if v]  # fmt: skip
+    if not units or count <= 0:
+        return []
+    if count >= len(units):  # the bound takes the dearest variant too
+        return [replace(mean, group=f"{group}/{k}", choice_below_s=mean.cpu_s - low,
+                        choice_above_s=high - mean.cpu_s, cpu_s_max=bound)
+                for k, (mean, low, high, bound) in enumerate(units)]  # fmt: skip
+    mean = _mean_cost([m for m, _, _, _ in units])
+    lows = sorted(low for _, low, _, _ in units)[:count]
+    highs = sorted((high for _, _, high, _ in units), reverse=True)[:count]
+    bounds = sorted((b for _, _, _, b in units), reverse=True)[:count]
+    below = mean.cpu_s - sum(lows) / count
+    above = sum(highs) / count - mean.cpu_s
+    return [replace(mean, group=group, choice_below_s=below, choice_above_s=above,
+                    cpu_s_max=sum(bounds) / count)] * count
+
+
+def _mean_cost(costs: list[JobCost]) -> JobCost:
+    n = len(costs)
+    return JobCost(*(sum(getattr(c, f) for c in costs) / n
+                     for f in ("env_steps", "updates", "test_episodes", "cpu_s", "cpu_s_se",
+                               "cpu_s_max")))  # fmt: skip
 
 
 def count_test_rounds(episodes: int, every: int) -> int:
@@ -120,13 +174,16 @@ class PartCost:
         return sum(j.cpu_s for j in self.jobs) + sum(self.baselines_s)
 
     def summary(self) -> dict[str, Any]:
-        se = math.sqrt(sum(j.cpu_s_se**2 for j in self.jobs))
+        se = combined_se(self.jobs)
         cpu = self.cpu_s
+        below = sum(j.choice_below_s for j in self.jobs)
+        above = sum(j.choice_above_s for j in self.jobs)
         return {
             "part": self.part, "jobs": len(self.jobs), "baselines": len(self.baselines_s),
             "env_steps": sum(j.env_steps for j in self.jobs),
             "updates": sum(j.updates for j in self.jobs),
-            "cpu_s": cpu, "cpu_s_low": max(0.0, cpu - Z95 * se), "cpu_s_high": cpu + Z95 * se,
+            "cpu_s": cpu, "cpu_s_low": max(0.0, cpu - Z95 * se - below),
+            "cpu_s_high": cpu + Z95 * se + above,
             "cpu_s_max": sum(j.cpu_s_max for j in self.jobs) + sum(self.baselines_s),
             "cpu_h": cpu / 3600.0, "promoted_from": self.source, "assumed": self.assumed,
         }  # fmt: skip
@@ -177,7 +234,8 @@ class Estimate:
                 row[key] = (row[key] + starts * per_worker) * self.contention
             row["cpu_h"] = row["cpu_s"] / 3600.0
         cpu = sum(r["cpu_s"] for r in rows)
-        se = math.sqrt(sum(j.cpu_s_se**2 for p in self.parts for j in p.jobs))
+        low = sum(r["cpu_s_low"] for r in rows)
+        high = sum(r["cpu_s_high"] for r in rows)
         scaled = [PartCost(p.part, p.position, p.source,
                            [j.scaled(self.contention) for j in p.jobs],
                            [b * self.contention for b in p.baselines_s]) for p in self.parts]
@@ -189,13 +247,12 @@ class Estimate:
                 "baselines": sum(r["baselines"] for r in rows),
                 "env_steps": sum(r["env_steps"] for r in rows),
                 "updates": sum(r["updates"] for r in rows),
-                "cpu_s": cpu, "cpu_s_low": sum(r["cpu_s_low"] for r in rows),
-                "cpu_s_high": sum(r["cpu_s_high"] for r in rows),
+                "cpu_s": cpu, "cpu_s_low": low, "cpu_s_high": high,
                 "cpu_s_max": sum(r["cpu_s_max"] for r in rows),
                 "cpu_h": cpu / 3600.0,
                 "wall_s": wall, "workers": self.workers,
-                "wall_s_low": wall * max(0.0, 1 - Z95 * se / cpu) if cpu else wall,
-                "wall_s_high": wall * (1 + Z95 * se / cpu) if cpu else wall,
+                "wall_s_low": wall * low / cpu if cpu else wall,
+                "wall_s_high": wall * high / cpu if cpu else wall,
                 "contention": self.contention,
             },
             "worker": self.worker.to_json(), "calibration_s": self.calibration_s,

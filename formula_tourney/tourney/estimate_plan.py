@@ -14,7 +14,14 @@ from collections.abc import Callable
 
 from formula_tourney.bots.baselines import bot_report
 from formula_tourney.sim.catalog import load_track
-from formula_tourney.tourney.estimate import Estimate, JobCost, PartCost, job_cost, rate_key
+from formula_tourney.tourney.estimate import (
+    Estimate,
+    JobCost,
+    PartCost,
+    candidates_cost,
+    job_cost,
+    rate_key,
+)
 from formula_tourney.tourney.estimate_calibrate import Rates, WorkerStart, calibrate, worker_start
 from formula_tourney.tourney.plan import PlannedPart, Planner, possible_variants, resolve_variant
 from formula_tourney.training.spec import RunSpec
@@ -28,16 +35,21 @@ def promoted_count(planner: Planner, item: PlannedPart) -> tuple[int, str]:
     part = item.part
     possible = possible_variants(planner.spec, part)
     rule = part.promotion
-    n = len(possible)
-    why = f"all {n} variants of {part.promoted_from} promoted"
+    units = len(possible)
+    why = f"all {units} variants of {part.promoted_from} promoted"
     if rule.best_per_family:
-        families = {resolve_variant(planner.spec, v)[1] for v in possible}
-        n = len(families)
-        why = f"one per family ({n} families)"
+        units = len({resolve_variant(planner.spec, v)[1] for v in possible})
+        why = f"one per family ({units} families)"
+    n = units
     if rule.top_k is not None and rule.top_k < n:
         n = rule.top_k
         why = f"top {n}"
-    return n, why + ", each at the mean cost of the variants that could come"
+    cost = ""
+    if n < units:
+        cost = ", each at the candidates' mean cost, the band from the cheapest to the dearest"
+    elif rule.best_per_family:
+        cost = ", each at its family's mean cost, the band from its cheapest to its dearest"
+    return n, why + cost
 
 
 def estimate_plan(planner: Planner, planned: list[PlannedPart], workers: int,
@@ -73,19 +85,21 @@ def estimate_plan(planner: Planner, planned: list[PlannedPart], workers: int,
         if item.variants is not None:
             for variant in item.variants:
                 for s_index in range(len(part.setups)):
-                    base = cost_of(planner.run_spec(item.position, variant, s_index),
-                                   f"{part.name}/{variant}#{s_index}")
-                    pc.jobs.extend([base] * seeds)
+                    label = f"{part.name}/{variant}#{s_index}"
+                    base = cost_of(planner.run_spec(item.position, variant, s_index), label)
+                    pc.jobs.extend([base.grouped(label)] * seeds)
         else:
             count, pc.assumed = promoted_count(planner, item)
             possible = possible_variants(planner.spec, part)
+            by_family = part.promotion.best_per_family
             for s_index in range(len(part.setups)):
-                costs = [cost_of(planner.run_spec(item.position, v, s_index),
-                                 f"{part.name}/{v}#{s_index}") for v in possible]
-                mean = JobCost(*(sum(getattr(c, f) for c in costs) / len(costs)
-                                 for f in ("env_steps", "updates", "test_episodes", "cpu_s",
-                                           "cpu_s_se", "cpu_s_max")))  # fmt: skip
-                pc.jobs.extend([mean] * (count * seeds))
+                units: dict[str, list[JobCost]] = {}
+                for v in possible:
+                    unit = resolve_variant(planner.spec, v)[1] if by_family else v
+                    units.setdefault(unit, []).append(cost_of(
+                        planner.run_spec(item.position, v, s_index), f"{part.name}/{v}#{s_index}"))
+                jobs = candidates_cost(units, count, f"{part.name}#{s_index}")
+                pc.jobs.extend(job for job in jobs for _ in range(seeds))
         for job in item.baselines:
             key = (str(job.spec["track"]), str(job.spec["reference"]), int(job.spec["laps"]))
             if key not in bot_cache:

@@ -157,6 +157,11 @@ class DemoSettings(_Frozen):
         return int(round(batch_size * self.batch_fraction))
 
 
+TEST_ONLY_SCHEDULE_KEYS = ("test_every_episodes", "test_starts", "test_max_steps",
+                           "save_test_checkpoints", "test_grip_scales")
+"""Schedule keys that change the tests and never the training (``RunSpec.training_digest``)."""
+
+
 class RunSpec(_Frozen):
     """One run: a variant trained on one track or a list, tested periodically with epsilon = 0."""
 
@@ -272,6 +277,21 @@ class RunSpec(_Frozen):
     def digest(self) -> str:
         """Short hash of the spec: a resumed tournament compares it to tell a changed file."""
         text = json.dumps(self.to_json(), sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+    def training_digest(self) -> str:
+        """Short hash of what the training depends on: the spec without its test settings.
+
+        Tests drive their own envs from their own seeds and never feed the learner, so two runs
+        that differ only in where, how often or how long they are tested train the same agent
+        step for step (``tests/test_claims.py`` checks it on real runs). A report counting runs
+        as independent samples must count such runs once (a tournament that enters an
+        entrant again in another part, with the same seeds, gets them)."""
+        data = self.to_json()
+        del data["test_tracks"]
+        for key in TEST_ONLY_SCHEDULE_KEYS:
+            data["schedule"].pop(key, None)
+        text = json.dumps(data, sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
     @classmethod
