@@ -244,6 +244,12 @@ def test_a_run_repeated_in_another_part_counts_once(ctx: Context) -> None:
     (comp,) = res.comparisons
     assert comp.a_runs == ["part1/win1/seed-0", "part1/win1/seed-2"]
     assert "A: 1 run(s) repeating another run's training" in comp.note
+    # the performance profile counts the repeated run once too
+    from_profile = claims_profile.run_ratios(dup_ctx)["job_id"].tolist()
+    assert "part1/win1/seed-1" not in from_profile and "part1/win1/seed-0" in from_profile
+    # the fixture's ablation WIN1 repeats part1's WIN1 training seed for seed: counted once
+    plain = claims_profile.run_ratios(ctx)["job_id"].tolist()
+    assert "part1/win1/seed-0" in plain and "ablation/win1/seed-0" not in plain
     # B drops a run that repeats one of A's
     data.configs["part1/win4/seed-2"] = same
     res = evaluate(Context.build(data), claim(kind="faster", track="oval",

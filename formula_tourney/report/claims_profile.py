@@ -3,8 +3,10 @@ is within ``tau`` times the track's reference limit, for every ``tau``.
 
 A run's ratio is its best clean lap on its first train track (``Context.runs``, the metric of
 every table) divided by that track's reference limit (``Context.limits``, from the baseline
-drives); a run without a clean lap has ratio ``inf`` and never counts. The band is a percentile
-bootstrap over runs, seeded like the report's other intervals.
+drives); a run without a clean lap has ratio ``inf`` and never counts. A run repeating another's
+training (``report.claims.training_key``: same seed and settings, other tests) is the same
+model and counts once, as in the claims. The band is a percentile bootstrap over runs, seeded
+like the report's other intervals.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 from formula_tourney.report import stats
+from formula_tourney.report.claims import training_key
 from formula_tourney.report.paper_tables import Context
 
 
@@ -22,7 +25,13 @@ def run_ratios(ctx: Context, by: str = "variant") -> pd.DataFrame:
     """One row per run with a reference limit on its first train track: job_id, group (the
     job's ``by`` column), track, best lap and ratio (inf without a clean lap)."""
     rows = []
+    seen: set[str] = set()
     for _, job in ctx.jobs.iterrows():
+        key = training_key(ctx, str(job["job_id"]))
+        if key and key in seen:
+            continue
+        if key:
+            seen.add(key)
         tracks = job["train_tracks"]
         track = str(tracks[0]) if len(tracks) else ""
         limit = ctx.limits.get(track, math.nan)
