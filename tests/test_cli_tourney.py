@@ -105,6 +105,9 @@ def test_ctrl_c_exits_130_and_the_job_resumes(tmp_path: Path) -> None:
         [sys.executable, "-m", "formula_tourney.cli", "run", str(path), "--workers", "1",
          "--results", str(results)],
         cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        # a suite started in the background (`cmd &` in a script) ignores SIGINT, and children
+        # inherit that: give the run the default Ctrl-C a terminal would
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     deadline = time.monotonic() + 120
     while True:
