@@ -10,7 +10,7 @@ with ``split_b`` or ``per_track`` is several comparisons with one overall verdic
 
 A run entered again in another part with the same seed and training settings (only its tests
 differ) trains the same agent step for step: it is one sample, not two, so each side keeps the
-first of the runs sharing a ``RunSpec.training_digest`` and B drops any run A has.
+first of the runs sharing a ``results.identity.training_digest`` and B drops any run A has.
 
 Scores are "higher is better": a lap time enters negated, so every effect is positive when A is
 better (for laps: B's mean best lap minus A's, in seconds).
@@ -27,12 +27,11 @@ import numpy as np
 import pandas as pd
 
 from formula_tourney.claims.schema import Claim, Group
-from formula_tourney.errors import UserInputError
 from formula_tourney.report import claims_stats
 from formula_tourney.report.claims_stats import ClaimStats
 from formula_tourney.report.paper_tables import Context, bot_result
 from formula_tourney.report.plots import moving_average
-from formula_tourney.training.spec import RunSpec
+from formula_tourney.results.identity import training_digest
 
 REPEATED = ("run(s) repeating another run's training (same seed and settings, other tests) "
             "counted once")
@@ -124,14 +123,9 @@ def select_jobs(ctx: Context, group: Group) -> pd.DataFrame:
 
 
 def training_key(ctx: Context, job_id: str) -> str:
-    """The run's ``RunSpec.training_digest`` ("" when its config.json has no readable spec)."""
+    """The run's ``results.identity.training_digest`` ("" without a stored run spec)."""
     spec = ctx.data.configs.get(job_id)
-    if not spec:
-        return ""
-    try:
-        return RunSpec.from_json(spec, job_id).training_digest()
-    except UserInputError:
-        return ""
+    return training_digest(spec) if isinstance(spec, dict) and spec else ""
 
 
 def distinct_runs(ctx: Context, ids: list[str], values: list[float], taken: set[str]

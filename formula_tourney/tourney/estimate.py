@@ -65,9 +65,6 @@ class JobCost:
                        self.cpu_s_se * factor, self.cpu_s_max * factor, self.group,
                        self.choice_below_s * factor, self.choice_above_s * factor)
 
-    def grouped(self, group: str) -> JobCost:
-        return replace(self, group=group)
-
 
 def combined_se(jobs: list[JobCost]) -> float:
     """The standard error of the jobs' summed cost: linear within a group, quadrature across."""

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 from formula_tourney.bots.baselines import bot_report
 from formula_tourney.sim.catalog import load_track
@@ -87,7 +88,7 @@ def estimate_plan(planner: Planner, planned: list[PlannedPart], workers: int,
                 for s_index in range(len(part.setups)):
                     label = f"{part.name}/{variant}#{s_index}"
                     base = cost_of(planner.run_spec(item.position, variant, s_index), label)
-                    pc.jobs.extend([base.grouped(label)] * seeds)
+                    pc.jobs.extend([replace(base, group=label)] * seeds)
         else:
             count, pc.assumed = promoted_count(planner, item)
             possible = possible_variants(planner.spec, part)

@@ -31,6 +31,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from formula_tourney.agents.variants import AgentConfig, get_variant
 from formula_tourney.errors import UserInputError
+from formula_tourney.results.identity import training_digest
 from formula_tourney.sim.catalog import check_track_name
 from formula_tourney.sim.config import RUN_OWNED_KEYS, EnvSettings, GripScale
 from formula_tourney.training.presets import get_preset
@@ -157,11 +158,6 @@ class DemoSettings(_Frozen):
         return int(round(batch_size * self.batch_fraction))
 
 
-TEST_ONLY_SCHEDULE_KEYS = ("test_every_episodes", "test_starts", "test_max_steps",
-                           "save_test_checkpoints", "test_grip_scales")
-"""Schedule keys that change the tests and never the training (``RunSpec.training_digest``)."""
-
-
 class RunSpec(_Frozen):
     """One run: a variant trained on one track or a list, tested periodically with epsilon = 0."""
 
@@ -280,19 +276,9 @@ class RunSpec(_Frozen):
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
     def training_digest(self) -> str:
-        """Short hash of what the training depends on: the spec without its test settings.
-
-        Tests drive their own envs from their own seeds and never feed the learner, so two runs
-        that differ only in where, how often or how long they are tested train the same agent
-        step for step (``tests/test_claims.py`` checks it on real runs). A report counting runs
-        as independent samples must count such runs once (a tournament that enters an
-        entrant again in another part, with the same seeds, gets them)."""
-        data = self.to_json()
-        del data["test_tracks"]
-        for key in TEST_ONLY_SCHEDULE_KEYS:
-            data["schedule"].pop(key, None)
-        text = json.dumps(data, sort_keys=True)
-        return hashlib.sha256(text.encode()).hexdigest()[:16]
+        """Short hash of what the training depends on: the spec without its test settings
+        (``results.identity``); a report must count runs sharing it as one sample."""
+        return training_digest(self.to_json())
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any], source: str) -> RunSpec:
