@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -17,6 +18,7 @@ from formula_tourney.results.layout import JOB_TABLES, SCHEMA_VERSION
 from formula_tourney.training import envs as run_envs
 from formula_tourney.training import loop
 from formula_tourney.training.evaluate import _lap_trace, start_positions
+from formula_tourney.training.presets import PRESETS
 from formula_tourney.training.spec import RunSpec, build_run_spec
 
 SCHEDULE = dict(
@@ -298,9 +300,48 @@ def test_paper_preset_is_the_registered_variant_and_others_are_labelled(ring_tra
     fast = build_run_spec(variant="PER1M", train_tracks=["ringA"], preset="fast",
                           overrides={"batch_size": 128})
     assert (fast.agent.batch_size, fast.agent.exploration_steps) == (128, 40_000)  # user wins
-    assert fast.agent.buffer_size == 200_000 and fast.beyond_paper() == ["preset fast"]
+    # the buffer is what PER1M's name stands for: the preset's 200k leaves it alone
+    assert fast.agent.buffer_size == 1_000_000 and fast.beyond_paper() == ["preset fast"]
+    assert build_run_spec(variant="WIN1", train_tracks=["ringA"],
+                          preset="fast").agent.buffer_size == 200_000  # fmt: skip
     demos = build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="fast-demos")
     assert demos.demos.laps == 3 and demos.demos.line == "mincurv"
     assert RunSpec.from_json(demos.to_json(), "round trip") == demos
     with pytest.raises(UserInputError, match="unknown preset 'quick'; known presets: paper"):
         build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="quick")
+
+
+def test_presets_never_change_what_a_variant_name_stands_for(ring_tracks) -> None:
+    """PER40k and PER1M stay two variants under every preset, WIN4 keeps its window."""
+    for preset in PRESETS:
+        agents = {v: build_run_spec(variant=v, train_tracks=["ringA"], preset=preset).agent
+                  for v in ("PER40k", "PER1M", "WIN4", "MS3", "LSTM8")}  # fmt: skip
+        assert (agents["PER40k"].buffer_size, agents["PER1M"].buffer_size) == (40_000, 1_000_000)
+        assert agents["PER40k"].prioritized and agents["PER1M"].prioritized
+        assert (agents["WIN4"].window, agents["MS3"].n_step) == (4, 3)
+        assert agents["LSTM8"].lstm_critic and agents["LSTM8"].window == 8
+
+
+def test_tuned_preset_is_the_committed_studies_draw(ring_tracks) -> None:
+    """The `tuned` DDPG settings are trial 0 of both committed studies, rounded to 2 digits,
+    with the technical study's brake hold, for DDPG and PER; the other families keep
+    `fast-small`."""
+    studies = Path(__file__).resolve().parent.parent / "tournaments" / "studies"
+    oval = json.loads((studies / "tune_fast_small-WIN1.json").read_text())
+    technical = json.loads((studies / "tune_technical-WIN4.json").read_text())
+    assert oval["best"]["number"] == 0 and oval["objective"]["kind"] == "cpu_s_to_beat_follower"
+    drawn_oval = oval["trials"][0]["params"]
+    drawn_technical = technical["trials"][0]["params"]
+    assert {k: drawn_technical[k] for k in drawn_oval} == drawn_oval  # the same draw on both
+    win4 = build_run_spec(variant="WIN4", train_tracks=["ringA"], preset="tuned").agent
+    for key, value in drawn_oval.items():
+        assert getattr(win4, key) == pytest.approx(value, rel=0.01), key
+    assert win4.brake_explore_hold_steps == drawn_technical["brake_explore_hold_steps"] == 12
+    assert (win4.hidden, win4.window) == ((128, 128), 4)
+    per = json.loads((studies / "tune_technical-PER1M.json").read_text())
+    assert per["variant"] == "PER1M" and per["trials"][0]["params"] == drawn_technical
+    per1m = build_run_spec(variant="PER1M", train_tracks=["ringA"], preset="tuned").agent
+    assert (per1m.gamma, per1m.brake_explore_hold_steps, per1m.buffer_size) == (0.976, 12, 10**6)
+    small = build_run_spec(variant="MS3", train_tracks=["ringA"], preset="fast-small").agent
+    tuned = build_run_spec(variant="MS3", train_tracks=["ringA"], preset="tuned").agent
+    assert tuned == small

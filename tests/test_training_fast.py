@@ -142,7 +142,13 @@ RECORDED = {  # episodes and tests of two default runs, recorded before cars and
 
 @pytest.mark.parametrize("variant", ["WIN4", "PER40k"])
 def test_default_run_reproduces_the_numbers_recorded_before(tmp_path, ring_tracks, variant) -> None:
-    """Rewards are rounded to 1e-6 here; the by-hand check compared whole files bit for bit."""
+    """Rewards agree to 1e-5 here; the by-hand check compared whole files bit for bit.
+
+    Bit for bit holds on one machine, not across them: float32 kernels (torch's GEMMs, the
+    compiled env) may round differently on another CPU, and a new machine (AVX-512,
+    2026-12-02) moved a recorded reward from 119.540001 to 119.5400020 with the same code.
+    Steps, tracks and update counts stay exact: a changed action would change them and the
+    rewards by far more than 1e-5."""
     spec = build_run_spec(
         variant=variant, overrides={**SMALL, **({"n_step": 2} if variant == "PER40k" else {})},
         train_tracks=["ringA", "ringB"], device="cpu", seed=5,
@@ -157,8 +163,8 @@ def test_default_run_reproduces_the_numbers_recorded_before(tmp_path, ring_track
     tests = pd.read_parquet(tmp_path / "job" / "tests.parquet")
     assert eps.track.tolist() == want["tracks"] and eps.steps.tolist() == want["steps"]
     assert eps.updates.tolist() == want["updates"]
-    assert [round(x, 6) for x in eps.reward] == want["reward"]
-    assert [round(x, 6) for x in tests.reward] == want["test_reward"]
+    assert eps.reward.tolist() == pytest.approx(want["reward"], rel=0, abs=1e-5)
+    assert tests.reward.tolist() == pytest.approx(want["test_reward"], rel=0, abs=1e-5)
     assert "demos" not in json.loads((tmp_path / "job" / "summary.json").read_text())
 
 

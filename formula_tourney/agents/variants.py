@@ -299,6 +299,20 @@ ALL_VARIANTS: dict[str, AgentConfig] = {**VARIANTS, **BEYOND_PAPER_VARIANTS}
 """Every registered variant: the paper's ten, then those beyond the paper."""
 
 
+NAMED_SETTINGS: tuple[str, ...] = ("window", "lstm_critic", "n_step", "prioritized", "buffer_size")
+"""The settings a paper variant's name stands for: WIN4's window, LSTM's critic, MS3's n-step,
+PER40k's prioritized 40k buffer."""
+
+
+def named_settings(name: str) -> frozenset[str]:
+    """The settings the registered variant ``name`` fixes by its name.
+
+    A preset's common overrides leave these alone: `fast`'s 200k buffer applied to both PER
+    variants made PER40k and PER1M one variant under two names (replication pilot, 2026-12-01).
+    """
+    return frozenset(get_variant(name).model_fields_set & set(NAMED_SETTINGS))
+
+
 def variant_names() -> list[str]:
     """Registered variant names: the paper's ten in its order, then those beyond the paper."""
     return list(ALL_VARIANTS)

@@ -13,6 +13,7 @@ import typer
 
 from formula_tourney.commands.output import emit, message
 from formula_tourney.errors import UserInputError
+from formula_tourney.training.presets import PRESETS
 
 RESULT_KEYS = (
     "best_lap_s", "laps", "damage", "finished", "episodes", "env_steps", "updates", "seconds",
@@ -87,7 +88,8 @@ def register(app: typer.Typer) -> None:
             [], "--env-set", help="FormulaRacing-v0 config override key=value (repeatable)."
         ),
         preset: str = typer.Option(
-            "paper", help="Settings preset: paper (the paper's), fast, fast-demos (beyond it)."
+            "paper", help=f"Settings preset: paper (the paper's) or one beyond it: "
+            f"{', '.join(p for p in PRESETS if p != 'paper')}."
         ),
         cars: int = typer.Option(1, help="Cars driving into the one replay buffer."),
         traffic_bots: int = typer.Option(

@@ -35,6 +35,7 @@ from formula_tourney.errors import UserInputError
 from formula_tourney.race.settings import RaceSettings
 from formula_tourney.safeio import check_name, read_user_text
 from formula_tourney.sim.config import RUN_OWNED_KEYS, EnvSettings
+from formula_tourney.training.presets import PRESETS
 from formula_tourney.training.spec import RUN_OWNED_HINTS, DemoSettings, RunSpec, Schedule
 
 MAX_SPEC_BYTES = 1024 * 1024
@@ -98,7 +99,7 @@ class VariantEntry(_Strict):
     env_steps: _unset_or(Schedule, "env_steps") = None
     preset: str | None = Field(
         None,
-        description="Named settings preset (training.presets: paper, fast, fast-demos); wins "
+        description=f"Named settings preset (training.presets: {', '.join(PRESETS)}); wins "
         "over the part's; anything but 'paper' is labelled beyond the paper.",
     )
 

@@ -29,7 +29,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from formula_tourney.agents.variants import AgentConfig, get_variant
+from formula_tourney.agents.variants import AgentConfig, get_variant, named_settings
 from formula_tourney.errors import UserInputError
 from formula_tourney.results.identity import training_digest
 from formula_tourney.sim.catalog import check_track_name
@@ -324,8 +324,8 @@ def build_run_spec(
     overrides, schedule keys and demonstrations first; the caller's own settings win over it.
     """
     chosen = get_preset(preset)
-    family = get_variant(variant).family
-    agent = get_variant(variant, {**chosen.agent_overrides(family), **dict(overrides or {})})
+    preset_agent = chosen.agent_overrides(get_variant(variant).family, named_settings(variant))
+    agent = get_variant(variant, {**preset_agent, **dict(overrides or {})})
     schedule = {**chosen.schedule, **dict(schedule or {})}
     if demos is None and chosen.demos is not None:
         demos = chosen.demos
