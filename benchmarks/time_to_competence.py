@@ -159,6 +159,23 @@ def milestones(
     return out
 
 
+def learning_curve(
+    tests: Any, track: str, cpu_by_episode: Mapping[int, float], cpu_total: float,
+) -> list[dict[str, Any]]:  # fmt: skip
+    """Per test round: episode, CPU-s then and its clean lap (None: no start lapped cleanly).
+
+    Kept in the JSON so a miss can be read off its curve (a run that crawls towards the bot
+    differs from one that never laps twice), and drawn by ``--plot``."""
+    out = []
+    for row in _models(tests, track).itertuples(index=False):
+        lap = float(row.clean_lap_s)
+        episode = int(row.episode)
+        cpu_s = float(cpu_by_episode.get(episode, cpu_total))
+        out.append({"episode": episode, "cpu_s": round(cpu_s, 1),
+                    "clean_lap_s": round(lap, 3) if math.isfinite(lap) else None})  # fmt: skip
+    return out
+
+
 def best_clean_lap(tests: Any, track: str) -> float:
     """The run's best lap: its fastest model clean lap on ``track`` (nan if none)."""
     laps = _models(tests, track)["clean_lap_s"].astype(float)
@@ -298,6 +315,7 @@ def _result(
         "best_lap_to_limit": finite(best / bots["reference_limit_s"], 4),
         "clean_start_rate": clean_start_rate(tests, track, first and first["episode"]),
         "cpu_s_total": round(cpu_total, 1),
+        "curve": learning_curve(tests, track, cpu_by_episode, cpu_total),
         **extra,
     }  # fmt: skip
 
@@ -535,6 +553,51 @@ def render(result: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def plot_curves(result: Mapping[str, Any], out_base: Path) -> list[Path]:
+    """Each run's clean test laps (dots) and best lap so far (line) against CPU-s, one colour
+    per entrant, with the two followers and the reference limit as horizontal lines."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    from formula_tourney.report.plots import save_figure
+
+    fig, ax = plt.subplots(figsize=(8, 4.8))
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    groups = [*result["entrants"], *([result["sb3"]] if result.get("sb3") else [])]
+    laps_drawn = []
+    for k, entrant in enumerate(groups):
+        colour = colours[k % len(colours)]
+        for n, run in enumerate(entrant["runs"]):
+            points = [(c["cpu_s"], c["clean_lap_s"]) for c in run["curve"]
+                      if c["clean_lap_s"] is not None]  # fmt: skip
+            if not points:
+                continue
+            x = [p[0] for p in points]
+            y = [p[1] for p in points]
+            best = [min(y[: i + 1]) for i in range(len(y))]
+            laps_drawn += y
+            ax.plot(x, y, ".", color=colour, alpha=0.35, ms=3)
+            ax.step(x, best, where="post", color=colour, lw=1.2,
+                    label=entrant["label"] if n == 0 else None)  # fmt: skip
+    bots = result["bots"]
+    for value, label, style in ((bots["centre_s"], "follower, centre", ":"),
+                                (bots["mincurv_s"], "follower, min-curvature", "--"),
+                                (bots["reference_limit_s"], "reference limit", "-")):  # fmt: skip
+        ax.axhline(value, color="black", ls=style, lw=0.8, label=f"{label} {value:.2f} s")
+    if laps_drawn:  # the slowest first laps would squash the interesting part
+        ax.set_ylim(bots["reference_limit_s"] * 0.98,
+                    min(max(laps_drawn), 2.0 * bots["reference_limit_s"]))  # fmt: skip
+    ax.set_xlabel("training CPU-s")
+    ax.set_ylabel("clean test lap (s)")
+    ax.set_title(f"{result['track']} (reference {result['reference']}, LAC {result['lac']}), "
+                 f"seeds {','.join(map(str, result['seeds']))}")  # fmt: skip
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    return save_figure(fig, out_base)
+
+
 def _json_summary(s: Mapping[str, Any]) -> dict[str, Any]:
     out = dict(s)
     for n in MILESTONES:
@@ -559,6 +622,8 @@ def main() -> None:
                     help="agent setting for every entrant, on top of its preset (repeatable)")
     ap.add_argument("--no-sb3", action="store_true", help="skip the SB3 SAC anchor")
     ap.add_argument("--out", default=None, help="folder for the job folders (default: temp)")
+    ap.add_argument("--plot", default=None, metavar="FILE",
+                    help="draw each run's clean test laps against CPU-s into FILE.png/.pdf")
     args = ap.parse_args()  # fmt: skip
     seeds = [int(x) for x in args.seeds.split(",") if x.strip()]
     if not seeds:
@@ -654,6 +719,9 @@ def main() -> None:
         "goals": goals, "entrants": results, "sb3": sb3, "out": str(out_root),
     }  # fmt: skip
     print(render(result), file=sys.stderr)
+    if args.plot:
+        for path in plot_curves(result, Path(args.plot)):
+            print(f"wrote {path}", file=sys.stderr)
     for e in [*results, *([sb3] if sb3 else [])]:
         e["summary"] = _json_summary(e["summary"])
     print(json.dumps(result, default=_json_default, allow_nan=False))

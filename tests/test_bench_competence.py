@@ -132,3 +132,26 @@ def test_parse_entrants() -> None:
             ttc.parse_entrants(bad)
     assert ttc.parse_overrides(["batch_size=32", "algorithm=sac"]) == {
         "batch_size": 32, "algorithm": "sac"}  # fmt: skip
+
+
+def test_learning_curve_lists_every_round_with_its_clean_lap() -> None:
+    curve = ttc.learning_curve(TABLE, "oval", CPU, cpu_total=99.0)
+    assert [c["episode"] for c in curve] == [5, 10, 15, 20, 25, 30]
+    assert [c["clean_lap_s"] for c in curve] == [None, None, 35.8, 35.1, 34.9, 34.5]
+    assert [c["cpu_s"] for c in curve] == [10.0, 20.0, 30.0, 40.0, 50.0, 60.0]
+    late = ttc.learning_curve(TABLE, "oval", {5: 10.0}, cpu_total=99.0)
+    assert [c["cpu_s"] for c in late] == [10.0, 99.0, 99.0, 99.0, 99.0, 99.0]
+
+
+NO_LAP = {"episode": 5, "cpu_s": 1.0, "clean_lap_s": None}
+
+
+def test_plot_curves_writes_a_png_and_a_pdf(tmp_path) -> None:
+    curve = ttc.learning_curve(TABLE, "oval", CPU, cpu_total=99.0)
+    result = {"track": "oval", "reference": "centre", "lac": False, "seeds": [0],
+              "bots": {"centre_s": 35.4, "mincurv_s": 34.7, "reference_limit_s": 33.8},
+              "entrants": [{"label": "WIN1:tuned", "runs": [{"curve": curve}]}],
+              "sb3": {"label": "SB3 SAC", "runs": [{"curve": [NO_LAP]}]}}  # fmt: skip
+    paths = ttc.plot_curves(result, tmp_path / "curves")
+    assert sorted(p.name for p in paths) == ["curves.pdf", "curves.png"]
+    assert (tmp_path / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
