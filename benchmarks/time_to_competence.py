@@ -48,6 +48,7 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import importlib.util  # noqa: E402
+import itertools  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
 import statistics  # noqa: E402
@@ -576,7 +577,7 @@ def plot_curves(result: Mapping[str, Any], out_base: Path) -> list[Path]:
                 continue
             x = [p[0] for p in points]
             y = [p[1] for p in points]
-            best = [min(y[: i + 1]) for i in range(len(y))]
+            best = list(itertools.accumulate(y, min))
             laps_drawn += y
             ax.plot(x, y, ".", color=colour, alpha=0.35, ms=3)
             ax.step(x, best, where="post", color=colour, lw=1.2,
