@@ -358,3 +358,31 @@ def test_resume_refuses_another_objective(tmp_path: Path) -> None:
                        r"objective \{'kind': 'best_lap'"):
         run_tune(path, "WIN4", trials=1, workers=1, resume=True, results_dir=tmp_path / "res")
     assert study.get_trials() == []
+
+
+def test_shipped_study_records_match_their_committed_tune_files() -> None:
+    """Each record in tournaments/studies/ is reproducible from a committed file: the file its
+    study name names checks for the record's variant, under the record's objective, and every
+    trial's parameters lie in that file's search space."""
+    root = Path(__file__).resolve().parents[1] / "tournaments"
+    records = sorted((root / "studies").glob("*.json"))
+    assert len(records) >= 3
+    for record_path in records:
+        record = json.loads(record_path.read_text())
+        variant = record["variant"]
+        name = record["study"].removesuffix(f"-{variant}")
+        assert record["study"] == record_path.stem == f"{name}-{variant}"
+        path = root / f"{name}.toml"
+        spec, text = load_tune_spec(path)
+        run = check_tune(spec, text, path, variant)
+        assert run.variant == variant
+        assert spec.objective.kind == record["objective"]["kind"], record_path.name
+        assert spec.objective.budget_cpu_s == record["objective"]["budget_cpu_s"]
+        for trial in record["trials"]:
+            assert set(trial["params"]) == set(spec.search), (record_path.name, trial["number"])
+            for key, value in trial["params"].items():
+                dim = spec.search[key]
+                if dim.choices is not None:
+                    assert value in dim.choices
+                else:
+                    assert dim.low <= value <= dim.high, (record_path.name, key, value)
