@@ -18,6 +18,8 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q torch==2.13.0
 	$(BIN)/python -m pip install -q -e '.[dev,ray]'
+	# numba's cache, filled once here: else every worker of the first run compiles (~50 s each)
+	$(BIN)/formula-tourney compile
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -12,7 +12,7 @@ import sys
 import click
 import typer
 
-from formula_tourney.commands import agents, demo, lines, race, report, tourney, tracks
+from formula_tourney.commands import agents, demo, lines, race, report, setup, tourney, tracks
 from formula_tourney.errors import UserInputError
 
 try:  # recent typer releases bundle their own copy of click and raise its usage errors
@@ -31,7 +31,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 
-for module in (demo, tracks, lines, agents, tourney, report, race):
+for module in (demo, tracks, lines, agents, tourney, report, race, setup):
     module.register(app)
 
 

@@ -4,6 +4,7 @@ anything is written, for ``run`` and ``run --dry-run`` alike."""
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -194,3 +195,33 @@ def test_env_step_budgets_resolve_variant_then_part_then_defaults(tmp_path: Path
     with pytest.raises(UserInputError, match=rf"budget.toml:{line_of(path, 'env_steps = 0')}: "):
         plan_tournament(path, tmp_path / "res")
     assert not (tmp_path / "res").exists()
+
+
+def test_dry_run_shows_an_entrants_own_budget(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """A variant entry's env_steps wins over the part's: the plan says so per entrant (the demo's
+    first plan showed only the part's 40k while WIN4 trained 65k)."""
+    path = tmp_path / "budget.toml"
+    path.write_text(BUDGET_FILE.format(win1=50000), encoding="utf-8")
+    main(["run", str(path), "--results", str(tmp_path / "res"), "--dry-run", "--json"])
+    parts = json.loads(capsys.readouterr().out)["plan"]["parts"]
+    assert [p["entrant_settings"] for p in parts] == [{"WIN1": {"env_steps": 50000}}, {}]
+    assert [p["env_steps"] for p in parts] == [90000, 35000]
+    main(["run", str(path), "--results", str(tmp_path / "res"), "--dry-run"])
+    assert "WIN1 sets env_steps=50000 (its entry wins)" in capsys.readouterr().out
+    assert not (tmp_path / "res").exists()
+
+
+def test_the_demo_trains_each_job_on_its_declared_budget(tmp_path: Path) -> None:
+    """quick.toml's comments give each job's env steps; the planner must agree (WIN1 40k on the
+    oval but 85k on technical, WIN4 65k): a variant-level budget would win over the part's."""
+    quick = Path(__file__).resolve().parents[1] / "tournaments" / "quick.toml"
+    _planner, planned, _root = plan_tournament(quick, tmp_path / "res")
+    budgets = {(part.part.name, job.meta["variant"]): RunSpec.from_json(job.spec, job.job_id)
+               .schedule.env_steps for part in planned for job in part.jobs}  # fmt: skip
+    assert budgets == {("p1-oval", "WIN1"): 40000, ("p1-oval", "WIN4"): 65000,
+                       ("p2-technical", "WIN1"): 85000}
+    technical = [RunSpec.from_json(job.spec, job.job_id) for job in planned[1].jobs]
+    assert {(s.preset, s.schedule.test_starts, s.schedule.test_every_episodes) for s in technical} \
+        == {("tuned", 3, 5)}

@@ -1,7 +1,8 @@
 """``formula-tourney demo``: the tool's main job on its built-in default.
 
-Runs (or resumes) the shipped ``quick`` tournament -- all ten variants on the oval, promotion to
-the technical track -- and prints its Table 1 with confidence intervals. ``make demo`` calls it.
+Runs (or resumes) the shipped ``quick`` tournament -- WIN1 and WIN4 on the oval, then WIN1 on the
+technical track (``tournaments/quick.toml`` says why) -- and prints its Table 1 with confidence
+intervals. ``make demo`` calls it.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ def register(app: typer.Typer) -> None:
         results: Path = typer.Option(Path("results"), help="Results folder."),
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
     ) -> None:
-        """Run the quick tournament (ten variants, oval then technical) and print Table 1.
+        """Run the quick tournament (WIN1 and WIN4 on the oval, WIN1 on technical); print Table 1.
 
         Exit codes as ``run``: 0 every job done, 2 bad input, 3 some jobs failed, 130
         interrupted."""

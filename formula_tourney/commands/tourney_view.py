@@ -119,7 +119,7 @@ def render_results(console: Console, result: dict[str, Any]) -> None:
 
 
 def budget_text(env_steps: int | None) -> str:
-    """The env-step budget of a part's (first entrant's) schedule, if it has one."""
+    """The part's env-step budget, if it has one (an entrant's own is shown beside it)."""
     return "" if env_steps is None else f", at most {env_steps} env steps"
 
 def render_plan(console: Console, plan: dict[str, Any], results: str) -> None:
@@ -147,6 +147,9 @@ def render_plan(console: Console, plan: dict[str, Any], results: str) -> None:
             f"{budget_text(part.get('env_steps'))};"
             f" selection {part['selection']}"
         )
+        for entrant, own in (part.get("entrant_settings") or {}).items():
+            pairs = ", ".join(f"{k}={json.dumps(v)}" for k, v in own.items())
+            console.print(f"    {escape(entrant)} sets {escape(pairs)} (its entry wins)")
         if part.get("env_overrides"):
             console.print(f"    env {escape(json.dumps(part['env_overrides']))}")
         if part["baselines"]:

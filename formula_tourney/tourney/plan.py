@@ -299,6 +299,8 @@ class Planner:
             variants = possible_variants(spec, part)
             run = self.run_spec(item.position, variants[0], 0) if variants else None
             schedule = run.schedule.model_dump() if run is not None else {}
+            # the part's own budget; an entrant's own one is in entrant_settings
+            schedule["env_steps"] = spec.settings(part)["env_steps"]
             parts.append({
                 "part": part.name,
                 "study": part.study,
@@ -311,6 +313,9 @@ class Planner:
                                                 "test_every_episodes", "test_starts",
                                                 "test_max_steps", "test_grip_scales")},
                 "env_overrides": run.env.overrides() if run is not None else {},
+                # a variant entry's demos/cars/env_steps/preset win over the part's: show them
+                "entrant_settings": {v: _jsonable(own) for v in variants
+                                     if (own := variant_run_settings(spec, v))},
                 "selection": part.selection.kind,
                 "kind": part.kind,
                 **({"races": part.race.races, "race_laps": part.race.laps,
@@ -325,6 +330,11 @@ class Planner:
             })  # fmt: skip
         return {"tournament": spec.name, "description": spec.description, "parts": parts,
                 "known_jobs": total_jobs}
+
+
+def _jsonable(settings: dict[str, Any]) -> dict[str, Any]:
+    """Run settings as plain data (a demos entry is a model)."""
+    return {k: v.model_dump() if hasattr(v, "model_dump") else v for k, v in settings.items()}
 
 
 def setup_label(setup: Setup) -> str:
