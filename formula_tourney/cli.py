@@ -12,7 +12,16 @@ import sys
 import click
 import typer
 
-from formula_tourney.commands import agents, demo, lines, race, report, setup, tourney, tracks
+from formula_tourney.commands import (
+    agents,
+    demo,
+    kernel_cache,
+    lines,
+    race,
+    report,
+    tourney,
+    tracks,
+)
 from formula_tourney.errors import UserInputError
 
 try:  # recent typer releases bundle their own copy of click and raise its usage errors
@@ -31,7 +40,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 
-for module in (demo, tracks, lines, agents, tourney, report, race, setup):
+for module in (demo, tracks, lines, agents, tourney, report, race, kernel_cache):
     module.register(app)
 
 

@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pydantic_core import to_jsonable_python
+
 from formula_tourney.agents.variants import get_variant
 from formula_tourney.errors import UserInputError
 from formula_tourney.results.layout import baseline_rel_path, job_rel_path
@@ -314,7 +316,7 @@ class Planner:
                                                 "test_max_steps", "test_grip_scales")},
                 "env_overrides": run.env.overrides() if run is not None else {},
                 # a variant entry's demos/cars/env_steps/preset win over the part's: show them
-                "entrant_settings": {v: _jsonable(own) for v in variants
+                "entrant_settings": {v: to_jsonable_python(own) for v in variants
                                      if (own := variant_run_settings(spec, v))},
                 "selection": part.selection.kind,
                 "kind": part.kind,
@@ -330,11 +332,6 @@ class Planner:
             })  # fmt: skip
         return {"tournament": spec.name, "description": spec.description, "parts": parts,
                 "known_jobs": total_jobs}
-
-
-def _jsonable(settings: dict[str, Any]) -> dict[str, Any]:
-    """Run settings as plain data (a demos entry is a model)."""
-    return {k: v.model_dump() if hasattr(v, "model_dump") else v for k, v in settings.items()}
 
 
 def setup_label(setup: Setup) -> str:
