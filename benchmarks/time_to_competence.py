@@ -621,6 +621,10 @@ def main() -> None:
     ap.add_argument("--max-steps", type=int, default=1000, help="steps per training episode")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="agent setting for every entrant, on top of its preset (repeatable)")
+    ap.add_argument("--demos-set", action="append", default=[], metavar="KEY=VALUE",
+                    help="demonstration setting (training.spec.DemoSettings) for every "
+                    "entrant, on top of its preset's demos (repeatable; adds demos to a "
+                    "preset without them)")
     ap.add_argument("--no-sb3", action="store_true", help="skip the SB3 SAC anchor")
     ap.add_argument("--out", default=None, help="folder for the job folders (default: temp)")
     ap.add_argument("--plot", default=None, metavar="FILE",
@@ -631,8 +635,10 @@ def main() -> None:
         raise SystemExit("--seeds is empty")
     entrants = parse_entrants(args.entrants)
     overrides = parse_overrides(args.set)
+    demo_overrides = parse_overrides(args.demos_set)
 
     from formula_tourney.errors import UserInputError
+    from formula_tourney.training.presets import get_preset
     from formula_tourney.training.spec import build_run_spec
 
     bots = bot_figures(args.track)
@@ -649,8 +655,12 @@ def main() -> None:
 
     def spec_of(variant: str, preset: str, seed: int, extra: Mapping[str, Any]) -> Any:
         try:
+            demos = None
+            if demo_overrides:
+                demos = {**(get_preset(preset).demos or {}), **demo_overrides}
             return build_run_spec(variant=variant, preset=preset, overrides=dict(extra),
-                                  seed=seed, source=f"entrant {variant}:{preset}", **common)
+                                  seed=seed, demos=demos, source=f"entrant {variant}:{preset}",
+                                  **common)  # fmt: skip
         except UserInputError as err:
             raise SystemExit(f"error: {err}") from None
 
@@ -716,7 +726,8 @@ def main() -> None:
         "lac": args.lac, "budget_cpu_s": args.budget_cpu_s, "seeds": seeds,
         "max_steps": args.max_steps, "test_every_episodes": TEST_EVERY,
         "test_starts": TEST_STARTS, "test_max_steps": test_max_steps,
-        "clean_start_min": CLEAN_STARTS, "overrides": overrides, "bots": bots,
+        "clean_start_min": CLEAN_STARTS, "overrides": overrides,
+        "demo_overrides": demo_overrides, "bots": bots,
         "goals": goals, "entrants": results, "sb3": sb3, "out": str(out_root),
     }  # fmt: skip
     print(render(result), file=sys.stderr)

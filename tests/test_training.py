@@ -353,3 +353,20 @@ def test_tuned_preset_is_the_committed_studies_draw(ring_tracks) -> None:
         small = build_run_spec(variant=variant, train_tracks=["ringA"], preset="fast-small")
         tuned = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned")
         assert tuned.agent == small.agent, variant
+
+
+def test_tuned_bc_is_tuned_with_cloned_demonstrations(ring_tracks) -> None:
+    """`tuned-bc` trains each variant exactly as `tuned` does, plus the follower's laps on the
+    min-curvature line in a quarter of every batch and Q-filtered cloning in the actor's loss;
+    its runs say so (with demos beyond the paper) and their config carries the weight."""
+    for variant in ("WIN1", "PER1M", "SAC"):
+        tuned = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned")
+        bc = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned-bc")
+        assert bc.agent == tuned.agent and tuned.demos is None
+        assert (bc.demos.laps, bc.demos.line, bc.demos.batch_fraction) == (10, "mincurv", 0.25)
+        assert (bc.demos.bc_weight, bc.demos.bc_q_filter, bc.demos.bc_steps) == (0.2, True, 0)
+        assert bc.beyond_paper() == [
+            "preset tuned-bc", *tuned.beyond_paper()[1:], "demos (follower on mincurv)"
+        ]  # SAC is labelled beyond the paper under every preset
+        assert bc.to_json()["demos"]["bc_weight"] == 0.2
+        assert RunSpec.from_json(bc.to_json(), "round trip") == bc

@@ -17,7 +17,7 @@ import pytest
 import torch
 from training_fixtures import SMALL, ring_track
 
-from formula_tourney.agents.ddpg import DDPGAgent
+from formula_tourney.agents.ddpg import DDPGAgent, load_checkpoint
 from formula_tourney.agents.replay import (
     DemoMix,
     OnlinePriorities,
@@ -26,6 +26,8 @@ from formula_tourney.agents.replay import (
 )
 from formula_tourney.agents.variants import get_variant
 from formula_tourney.errors import UserInputError
+from formula_tourney.results.folder import JobFolder
+from formula_tourney.results.layout import LAST_CHECKPOINT
 from formula_tourney.sim.env import FormulaRacingEnv, FormulaRacingVectorEnv
 from formula_tourney.training import envs as run_envs
 from formula_tourney.training import loop
@@ -202,10 +204,10 @@ def test_demo_share_of_a_batch_equals_the_setting(prioritized: bool) -> None:
         assert set(changed) == set(batch.indices[:48].tolist())
 
 
-def _demo_spec(cars: int = 1, **demos: object) -> RunSpec:
+def _demo_spec(cars: int = 1, episodes: int = 3, **demos: object) -> RunSpec:
     return build_run_spec(
         variant="MS2", overrides={**SMALL, "window": 2}, train_tracks=["ringA"], device="cpu",
-        seed=1, schedule={"episodes": 3, "max_steps": 400, "test_every_episodes": 3,
+        seed=1, schedule={"episodes": episodes, "max_steps": 400, "test_every_episodes": 3,
                           "test_starts": 1, "test_max_steps": 40, "cars": cars},
         demos={"laps": 2, "line": "centre", **demos},
     )  # fmt: skip
@@ -267,8 +269,31 @@ def test_a_run_with_demos_records_who_demonstrated(tmp_path, ring_tracks) -> Non
     assert on_disk["demos"] == demos
     config = json.loads((tmp_path / "job" / "config.json").read_text())["run_spec"]
     assert config["demos"]["line"] == "centre" and config["demos"]["batch_fraction"] == 0.5
+    assert "bc_weight" not in config["demos"] and "bc_q_filter" not in config["demos"]  # off
     with pytest.raises(UserInputError, match="batch_fraction"):
         _demo_spec(batch_fraction=1.0)
+
+
+def test_a_run_with_bc_weight_clones_the_demonstrations_all_run_long(
+    tmp_path, ring_tracks
+) -> None:
+    """``demos.bc_weight`` reaches every update of the loop: with a strong unfiltered term the
+    trained actor's actions are closer to the follower's than the same run's without it."""
+    demo = collect_demonstrations(_demo_spec(), run_envs.RunEnvs(_demo_spec()), 29, 3,
+                                  np.random.SeedSequence(3))  # fmt: skip
+    batch = demo.buffer.sample(256)  # windows as the actor reads them
+    obs, actions = torch.from_numpy(batch.observations), torch.from_numpy(batch.actions)
+
+    def mse(**demos: object) -> float:
+        job = tmp_path / f"job-{len(list(tmp_path.iterdir()))}"
+        summary = loop.train(_demo_spec(episodes=40, batch_fraction=0.5, **demos), job)
+        assert summary["updates"] > 200
+        agent, _ = load_checkpoint(JobFolder(job).checkpoint_path(LAST_CHECKPOINT))
+        with torch.no_grad():
+            return float(((agent.actor(obs) - actions) ** 2).sum(1).mean())
+
+    free, cloned = mse(), mse(bc_weight=50.0, bc_q_filter=False)
+    assert cloned < 0.5 * free, (cloned, free)
 
 
 def test_demo_agent_update_takes_the_mixed_batch() -> None:

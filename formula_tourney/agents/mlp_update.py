@@ -42,6 +42,14 @@ class UpdateResult(NamedTuple):
     stats: list[float]  # [sum Q(s, a), sum Q(s, mu(s)), sum dL/dQ * td (= -2 L(Q)), sum |td|]
     td: torch.Tensor  # (B,) y - Q(s, a)
     grad_a: torch.Tensor | None  # (B, A) grad_a Q(s_i, a_i), PER only
+    bc_loss: float = 0.0  # the cloning term's value (0 without demonstrations)
+
+
+class BCLoss(NamedTuple):
+    """Behaviour cloning in the actor's loss: its weight and whether the Q-filter applies."""
+
+    weight: float
+    q_filter: bool = True
 
 
 @dataclass
@@ -195,10 +203,37 @@ class MLPUpdate:
         aten.threshold_backward.grad_input(ws.gc1, ws.c1, 0, grad_input=ws.gc1)
         self._dense_backward(ws.gc1, ws.gc1_t, x, self.c_l1)
 
-    def _actor_backward(self, ws: _Workspace, x: torch.Tensor) -> None:
-        """Actor gradients of eq. (3): -mean Q(s, mu(s)) through the action only."""
+    @staticmethod
+    def _bc_gradient(
+        ws: _Workspace, actions: torch.Tensor, demo_rows: torch.Tensor, bc: BCLoss
+    ) -> float:
+        """Adds the cloning term's dL/dmu to ``ws.gpi`` and returns the term's value.
+
+        L_bc = w mean|Q(s, mu(s))| / k sum_i m_i ||mu(s_i) - a_i||^2 over the ``k`` demonstration
+        rows, m_i = [Q(s_i, a_i) > Q(s_i, mu(s_i))] under the Q-filter; the scale is a constant
+        (no gradient through it), as in TD3+BC.
+        """
+        keep = demo_rows.to(ws.q.dtype).view(-1, 1)
+        k = float(keep.sum())
+        if k == 0.0:
+            return 0.0
+        if bc.q_filter:
+            keep = keep * (ws.q_q > ws.q[ws.batch:]).to(keep.dtype)
+        coef = bc.weight * float(ws.q[ws.batch:].abs().mean()) / k
+        diff = (ws.pi - actions) * keep
+        ws.gpi.add_(diff, alpha=2.0 * coef)
+        return coef * float(diff.square().sum())
+
+    def _actor_backward(
+        self, ws: _Workspace, x: torch.Tensor, bc_grad: tuple[torch.Tensor, torch.Tensor,
+                                                               BCLoss] | None = None
+    ) -> float:
+        """Actor gradients of eq. (3): -mean Q(s, mu(s)) through the action only, plus the
+        cloning term when ``bc_grad`` = (actions, demonstration rows, weights) is given; returns
+        the cloning term's value."""
         # dL/dmu = -1/N dQ/da at a = mu(s); the scale is applied to the (B, 3) product
         torch.mm(ws.m2_pi, self.c_act.w, out=ws.gpi).mul_(-1.0 / ws.batch)
+        bc_loss = 0.0 if bc_grad is None else self._bc_gradient(ws, *bc_grad)
         aten.tanh_backward.grad_input(ws.gpi_steer, ws.actor.pi_steer, grad_input=ws.gz_steer)
         aten.sigmoid_backward.grad_input(
             ws.gpi_pedals, ws.actor.pi_pedals, grad_input=ws.gz_pedals
@@ -210,6 +245,7 @@ class MLPUpdate:
         torch.mm(ws.ga2, self.a_l2.w, out=ws.ga1)
         aten.threshold_backward.grad_input(ws.ga1, ws.a1, 0, grad_input=ws.ga1)
         self._dense_backward(ws.ga1, ws.ga1_t, x, self.a_l1)
+        return bc_loss
 
     # --- the step ------------------------------------------------------------------------------
     @torch.no_grad()
@@ -222,10 +258,13 @@ class MLPUpdate:
         discounts: torch.Tensor,
         weights: torch.Tensor,
         action_grad: bool = False,
+        demo_rows: torch.Tensor | None = None,
+        bc: BCLoss | None = None,
     ) -> UpdateResult:
         """Both networks' gradients into their ``.grad`` (the optimizer step is the caller's).
 
-        Observations are windows ``(B, w, D)``; rewards, discounts and weights ``(B,)``.
+        Observations are windows ``(B, w, D)``; rewards, discounts and weights ``(B,)``;
+        ``demo_rows`` ``(B,)`` marks the demonstration rows the cloning term ``bc`` reads.
         """
         B = actions.shape[0]  # noqa: N806
         ws = self._workspace(B)
@@ -239,9 +278,12 @@ class MLPUpdate:
         torch.sub(ws.y, ws.q_q, out=ws.td)
         torch.addcmul(ws.zeros, ws.td, weights.view(B, 1), value=-2.0 / B, out=ws.gq)
         self._critic_backward(ws, x, actions)
-        self._actor_backward(ws, x)
+        bc_grad = None
+        if bc is not None and bc.weight > 0.0 and demo_rows is not None:
+            bc_grad = (actions, demo_rows, bc)
+        bc_loss = self._actor_backward(ws, x, bc_grad)
         grad_a = torch.mm(ws.m2_q, self.c_act.w, out=ws.grad_a) if action_grad else None
         torch.sum(ws.q_rows, 1, out=ws.stats_q)
         torch.dot(ws.gq_flat, ws.td_flat, out=ws.stats_td)
         torch.linalg.vector_norm(ws.td_flat, 1, out=ws.stats_abs)
-        return UpdateResult(ws.stats.tolist(), ws.td_flat, grad_a)
+        return UpdateResult(ws.stats.tolist(), ws.td_flat, grad_a, bc_loss)

@@ -103,6 +103,10 @@ def register(app: typer.Typer) -> None:
         demo_line: str = typer.Option("mincurv", help="Line the demonstrating follower drives."),
         demo_fraction: float = typer.Option(0.5, help="Share of each batch from the demos."),
         bc_steps: int = typer.Option(0, help="Behaviour-cloning warm-start steps (with demos)."),
+        bc_weight: float = typer.Option(
+            0.0, help="Behaviour cloning in the actor's loss all run long, Q-filtered (with "
+            "demos; 0: off; docs/agents.md)."
+        ),
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
     ) -> None:
         """Train one DDPG variant and write its job folder (docs/CONTRACTS.md layout)."""
@@ -121,7 +125,7 @@ def register(app: typer.Typer) -> None:
                       "traffic_bots": traffic_bots,
                       "test_grip_scales": list(test_grip)},
             demos={"laps": demo_laps, "line": demo_line, "batch_fraction": demo_fraction,
-                   "bc_steps": bc_steps} if demo_laps > 0 else None,
+                   "bc_steps": bc_steps, "bc_weight": bc_weight} if demo_laps > 0 else None,
             preset=preset, source="train options",
         )  # fmt: skip
         if JobFolder(out).is_finished():

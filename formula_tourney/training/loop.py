@@ -29,6 +29,7 @@ import torch
 from torch.utils.tensorboard import SummaryWriter
 
 from formula_tourney.agents.ddpg import DDPGAgent, configure_torch, save_checkpoint
+from formula_tourney.agents.mlp_update import BCLoss
 from formula_tourney.agents.noise import BrakeExplorationNoise, linear_epsilon
 from formula_tourney.agents.replay import DemoMix, make_buffer
 from formula_tourney.results.folder import JobFolder
@@ -121,6 +122,7 @@ def train(
     priority_sink: Any = buffer  # what agent.update hands PER priorities to
     demo_summary: dict[str, Any] | None = None
     demo_seconds = 0.0  # driving and cloning count as training time (``seconds``)
+    bc_loss: BCLoss | None = None  # cloning in the actor's loss, all run long
     if spec.demos is not None:
         t_demo = time.perf_counter()
         demos = collect_demonstrations(spec, envs, obs_dim, action_dim, seed=demo_seq)
@@ -131,6 +133,8 @@ def train(
             bc = behaviour_clone(agent, demos.buffer, spec.demos.bc_steps,
                                  agent_cfg.batch_size, spec.demos.bc_lr)  # fmt: skip
             demo_summary.update(bc_mse_before=bc[0], bc_mse_after=bc[1])
+        if spec.demos.bc_weight > 0.0 and mix.demo_rows > 0:
+            bc_loss = BCLoss(spec.demos.bc_weight, spec.demos.bc_q_filter)
         demo_seconds = time.perf_counter() - t_demo
 
     out.mkdir(parents=True, exist_ok=True)
@@ -215,7 +219,7 @@ def train(
             if agent_cfg.prioritized:
                 frac = min(1.0, agent.updates / agent_cfg.per_beta_steps)
                 buffer.beta = agent_cfg.per_beta0 + (1.0 - agent_cfg.per_beta0) * frac
-            stats = agent.update(sampler.sample(agent_cfg.batch_size), priority_sink)
+            stats = agent.update(sampler.sample(agent_cfg.batch_size), priority_sink, bc_loss)
             if not (math.isfinite(stats.critic_loss) and math.isfinite(stats.actor_loss)):
                 writer.close()
                 _write_tables()

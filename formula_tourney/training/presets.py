@@ -91,6 +91,13 @@ _TUNED_DDPG = {"batch_size": 64, "exploration_steps": 13_000, "actor_lr": 3.7e-4
 _TUNED_SAC = {"batch_size": 32, "actor_lr": 8.5e-5, "critic_lr": 3.5e-4, "gamma": 0.995,
               "alpha_init": 0.01, "target_entropy": -2.85}  # fmt: skip
 
+# Demonstrations for `tuned-bc`, from 4-seed screens on `technical` (recorded line + LAC, WIN1,
+# 150 CPU-s, time_to_competence.py --demos-set, 2026-12-02): with demo rows in the batch every
+# configuration lapped in 4 of 4 seeds (`tuned` alone: 3 of 4, median 87.3 CPU-s); 10 laps gave
+# the soonest first clean lap with good best laps (median 50.0 CPU-s, best 78.5 s), half of the
+# batch sooner still but slower laps (44.4 CPU-s, 83.5 s), cloning weight 0.2 beat 1.0 and 0.
+_TUNED_BC_DEMOS = {"laps": 10, "line": "mincurv", "batch_fraction": 0.25, "bc_weight": 0.2}
+
 PRESETS: dict[str, Preset] = {
     "paper": Preset(
         name="paper",
@@ -126,6 +133,16 @@ PRESETS: dict[str, Preset] = {
         "study's pick held on 4 seeds.",
         overrides=_FAST_SMALL,
         family_overrides={"DDPG": _TUNED_DDPG, "PER": _TUNED_DDPG, "SAC": _TUNED_SAC},
+    ),
+    "tuned-bc": Preset(
+        name="tuned-bc",
+        description="'tuned' plus ten follower laps on the min-curvature line as "
+        "demonstrations: a quarter of every batch, cloned in the actor's loss where the critic "
+        "rates the demonstrated action above the actor's own (Q-filter); on `technical` the "
+        "first clean lap after a median of 50 CPU-s, 4 of 4 seeds (docs/agents.md).",
+        overrides=_FAST_SMALL,
+        family_overrides={"DDPG": _TUNED_DDPG, "PER": _TUNED_DDPG, "SAC": _TUNED_SAC},
+        demos=_TUNED_BC_DEMOS,
     ),
 }
 

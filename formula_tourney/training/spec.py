@@ -152,6 +152,24 @@ class DemoSettings(_Frozen):
         "actor's MSE to the demonstrated actions before RL starts (0 = off).",
     )  # fmt: skip
     bc_lr: float = Field(1e-3, gt=0.0, description="Adam learning rate of the BC warm start.")
+    bc_weight: float = Field(
+        0.0, ge=0.0, le=1000.0, description="Behaviour cloning inside the actor's loss, all "
+        "run long (Nair et al. 2018; TD3+BC's scaling): the actor's loss gains bc_weight x "
+        "mean|Q(s, mu(s))| x the mean over the batch's demonstration rows of ||mu(s) - a||^2, "
+        "so the weight does not depend on the reward's scale (0 = off).",
+    )  # fmt: skip
+    bc_q_filter: bool = Field(
+        True, description="Clone a demonstrated action only where the critic rates it above "
+        "the actor's own, Q(s, a) > Q(s, mu(s)) (Nair et al.'s Q-filter): the actor can outgrow "
+        "the demonstrator once the critic knows better.",
+    )  # fmt: skip
+
+    @model_validator(mode="after")
+    def _cloning_needs_demo_rows(self) -> DemoSettings:
+        if self.bc_weight > 0.0 and self.batch_fraction == 0.0:
+            raise ValueError("bc_weight > 0 clones the batch's demonstration rows: it needs "
+                             "batch_fraction > 0")  # fmt: skip
+        return self
 
     def demo_rows(self, batch_size: int) -> int:
         """Rows of a batch of ``batch_size`` drawn from the demonstrations."""
@@ -255,6 +273,10 @@ class RunSpec(_Frozen):
         data = self.model_dump(mode="json")
         if data["demos"] is None:
             del data["demos"]
+        else:  # cloning in the actor's loss is newer than demos: off, it leaves them out
+            for key, default in (("bc_weight", 0.0), ("bc_q_filter", True)):
+                if data["demos"][key] == default:
+                    del data["demos"][key]
         if data["schedule"]["cars"] == 1:
             del data["schedule"]["cars"]
         if data["schedule"]["env_steps"] is None:
