@@ -104,8 +104,8 @@ def test_nan_loss_raises_diverged_without_summary(tmp_path, ring_tracks, monkeyp
 
     real = ddpg.DDPGAgent.update
 
-    def poisoned(self, batch, per_buffer=None):  # type: ignore[no-untyped-def]
-        info = real(self, batch, per_buffer)
+    def poisoned(self, batch, per_buffer=None, bc=None):  # type: ignore[no-untyped-def]
+        info = real(self, batch, per_buffer, bc)
         return info._replace(critic_loss=math.nan) if self.updates >= 3 else info
 
     monkeypatch.setattr(ddpg.DDPGAgent, "update", poisoned)

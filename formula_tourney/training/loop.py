@@ -219,7 +219,7 @@ def train(
             if agent_cfg.prioritized:
                 frac = min(1.0, agent.updates / agent_cfg.per_beta_steps)
                 buffer.beta = agent_cfg.per_beta0 + (1.0 - agent_cfg.per_beta0) * frac
-            stats = agent.update(sampler.sample(agent_cfg.batch_size), priority_sink, bc_loss)
+            stats = agent.update(sampler.sample(agent_cfg.batch_size), priority_sink, bc=bc_loss)
             if not (math.isfinite(stats.critic_loss) and math.isfinite(stats.actor_loss)):
                 writer.close()
                 _write_tables()
