@@ -224,4 +224,5 @@ def test_the_demo_trains_each_job_on_its_declared_budget(tmp_path: Path) -> None
                        ("p2-technical", "WIN1"): 85000}
     technical = [RunSpec.from_json(job.spec, job.job_id) for job in planned[1].jobs]
     assert {(s.preset, s.schedule.test_starts, s.schedule.test_every_episodes) for s in technical} \
-        == {("tuned", 3, 5)}
+        == {("tuned-bc", 3, 5)}
+    assert {(s.demos.laps, s.demos.bc_weight) for s in technical} == {(10, 0.2)}  # the preset's

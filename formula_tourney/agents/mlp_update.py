@@ -17,7 +17,9 @@ with no graph to build:
   weights (the critic's weight gradients read the first ``B`` rows only);
 * PER's ``grad_a Q(s_i, a_i)`` is ``(relu'(h2) * w_out) W2a``, one GEMM on a mask computed
   anyway;
-* Adam runs once per network on flat views (parameters, gradients and moments are contiguous).
+* Adam runs once per network on flat views (parameters, gradients and moments are contiguous);
+* with demonstrations, behaviour cloning in the actor's loss (``BCLoss``) adds its gradient at
+  ``mu`` before the squash's backward: one (B, 3) block, nothing when it is off.
 
 The parameters stay the ``nn.Module`` parameters (state_dict keys and checkpoints unchanged);
 gradients are written into the parameters' ``.grad``, which the agent binds to views of one flat
@@ -229,8 +231,8 @@ class MLPUpdate:
                                                                BCLoss] | None = None
     ) -> float:
         """Actor gradients of eq. (3): -mean Q(s, mu(s)) through the action only, plus the
-        cloning term when ``bc_grad`` = (actions, demonstration rows, weights) is given; returns
-        the cloning term's value."""
+        cloning term when ``bc_grad`` = (actions, demonstration rows, its settings) is given;
+        returns the cloning term's value."""
         # dL/dmu = -1/N dQ/da at a = mu(s); the scale is applied to the (B, 3) product
         torch.mm(ws.m2_pi, self.c_act.w, out=ws.gpi).mul_(-1.0 / ws.batch)
         bc_loss = 0.0 if bc_grad is None else self._bc_gradient(ws, *bc_grad)
