@@ -638,7 +638,6 @@ def main() -> None:
     demo_overrides = parse_overrides(args.demos_set)
 
     from formula_tourney.errors import UserInputError
-    from formula_tourney.training.presets import get_preset
     from formula_tourney.training.spec import build_run_spec
 
     bots = bot_figures(args.track)
@@ -655,12 +654,9 @@ def main() -> None:
 
     def spec_of(variant: str, preset: str, seed: int, extra: Mapping[str, Any]) -> Any:
         try:
-            demos = None
-            if demo_overrides:
-                demos = {**(get_preset(preset).demos or {}), **demo_overrides}
             return build_run_spec(variant=variant, preset=preset, overrides=dict(extra),
-                                  seed=seed, demos=demos, source=f"entrant {variant}:{preset}",
-                                  **common)  # fmt: skip
+                                  seed=seed, demos=demo_overrides or None,
+                                  source=f"entrant {variant}:{preset}", **common)  # fmt: skip
         except UserInputError as err:
             raise SystemExit(f"error: {err}") from None
 

@@ -11,7 +11,8 @@ from formula_tourney.agents.ddpg import DDPGAgent
 from formula_tourney.agents.mlp_update import BCLoss
 from formula_tourney.agents.replay import DemoMix, ReplayBuffer, make_buffer
 from formula_tourney.agents.variants import AgentConfig, get_variant
-from formula_tourney.training.spec import DemoSettings
+from formula_tourney.errors import UserInputError
+from formula_tourney.training.spec import DemoSettings, build_run_spec
 
 D = 6
 SMALL = {"hidden": (32, 24), "batch_size": 16, "buffer_size": 1000}
@@ -63,7 +64,7 @@ def test_the_actor_loss_gains_the_q_filtered_mse_to_the_demonstrated_actions(
         assert 0 < int(keep.sum()) < 6, "the check needs rows kept and rows filtered out"
     mse = ((mu - a) ** 2).sum(1)
     expected = -q_mu.mean() + 0.7 * q_mu.abs().mean() / 6 * (mse * keep).sum()
-    info = agent.update(batch, None, BCLoss(0.7, q_filter))
+    info = agent.update(batch, None, BCLoss(0.7, 6, q_filter))
     assert info.actor_loss == pytest.approx(float(expected), rel=1e-5)
     plain = DDPGAgent(cfg, D, seed=4).update(batch, None)
     assert plain.actor_loss == pytest.approx(float(-q_mu.mean()), rel=1e-5)
@@ -76,7 +77,7 @@ def test_the_hand_written_cloning_gradient_matches_autograd(name: str) -> None:
     manual, reference = DDPGAgent(cfg, D, seed=4), DDPGAgent(cfg, D, seed=4)
     assert manual._mlp_update is not None
     mix_m, mix_r = _mix(cfg), _mix(cfg)
-    bc = BCLoss(0.7)
+    bc = BCLoss(0.7, 6)
     for _ in range(5):
         info_m = manual.update(mix_m.sample(16), mix_m.priorities(16), bc)
         info_r = reference._update_autograd(mix_r.sample(16), mix_r.priorities(16), bc)
@@ -105,11 +106,25 @@ def test_cloning_pulls_the_actor_towards_the_demonstrated_actions(name: str) -> 
             mu = agent.actor(obs)  # SAC: its greedy action, the squashed mean
         return float(((mu - a) ** 2).sum(1).mean())
 
-    cloned, free = mse_after(BCLoss(50.0, q_filter=False)), mse_after(None)
+    cloned, free = mse_after(BCLoss(50.0, 8, q_filter=False)), mse_after(None)
     assert cloned < 0.5 * free, (cloned, free)
 
 
-def test_cloning_needs_demonstration_rows_in_the_batch() -> None:
-    with pytest.raises(ValueError, match="batch_fraction > 0"):
-        DemoSettings(batch_fraction=0.0, bc_weight=0.5)
+def test_cloning_needs_demonstration_rows_in_every_batch(ring_tracks) -> None:
+    """A weight with no demonstration rows to clone is refused, also where the fraction rounds
+    to no row at the run's batch size."""
+    for fraction, batch in ((0.0, 64), (0.01, 16)):
+        with pytest.raises(UserInputError, match="bc_weight 0.5 clones"):
+            build_run_spec(variant="WIN1", train_tracks=["ringA"], overrides={"batch_size": batch},
+                           demos={"batch_fraction": fraction, "bc_weight": 0.5})  # fmt: skip
     assert DemoSettings(batch_fraction=0.0, bc_steps=10).bc_weight == 0.0
+
+
+def test_a_demos_setting_changes_one_key_of_the_presets_demonstrations(ring_tracks) -> None:
+    """The caller's demos keys win over the preset's one by one, as agent and schedule keys do:
+    `tuned-bc` with another weight keeps its 10 laps and its quarter of the batch."""
+    spec = build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="tuned-bc",
+                          demos={"bc_weight": 0.5})  # fmt: skip
+    assert (spec.demos.laps, spec.demos.batch_fraction, spec.demos.bc_weight) == (10, 0.25, 0.5)
+    plain = build_run_spec(variant="WIN1", train_tracks=["ringA"], demos={"laps": 2})
+    assert plain.demos.bc_weight == 0.0 and plain.demos.laps == 2

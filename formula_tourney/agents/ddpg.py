@@ -369,19 +369,14 @@ class DDPGAgent:
             q_next = q_next.amin(0)
         return rewards + discounts * q_next
 
-    def _demo_rows(self, batch: ReplayBatch, bc: BCLoss | None) -> torch.Tensor | None:
-        """The batch's demonstration rows as a tensor, when the cloning term reads them."""
-        if bc is None or bc.weight <= 0.0 or batch.from_demos is None:
-            return None
-        return torch.from_numpy(batch.from_demos).to(self.device)
-
     def update(
         self, batch: ReplayBatch, per_buffer: Any | None = None, bc: BCLoss | None = None
     ) -> UpdateInfo:
         """One gradient step on critic and actor, then the soft target update.
 
         ``per_buffer`` (a PrioritizedReplayBuffer) receives eq. (5)'s priorities for the batch;
-        ``bc`` adds behaviour cloning of the batch's demonstration rows to the actor's loss.
+        ``bc`` adds behaviour cloning of the batch's demonstration rows (its last ``bc.rows``,
+        as ``replay.DemoMix`` lays a batch out) to the actor's loss.
         MLP critics take the hand-written update (``mlp_update.py``): the mathematics of
         ``_update_autograd`` with no autograd graph, ~60 operators into preallocated buffers
         instead of ~160 (``learner_throughput.py`` times both side by side).
@@ -390,9 +385,7 @@ class DDPGAgent:
             return self._update_autograd(batch, per_buffer, bc)
         cfg, mlp = self.cfg, self._mlp_update
         t = self._tensors(batch, self._MLP_FIELDS)
-        result = mlp.gradients(
-            **t, action_grad=cfg.prioritized, demo_rows=self._demo_rows(batch, bc), bc=bc
-        )
+        result = mlp.gradients(**t, action_grad=cfg.prioritized, bc=bc)
         self.critic_opt.step()
         self.actor_opt.step()
         with torch.no_grad():  # (4)
@@ -402,27 +395,25 @@ class DDPGAgent:
                 batch.indices, result.td.cpu().numpy(), result.grad_a.cpu().numpy()
             )
         self.updates += 1
-        sum_q, sum_q_pi, sum_gq_td, sum_abs_td = result.stats
+        sum_q, sum_q_pi, sum_gq_td, sum_abs_td, bc_loss = result.stats
         n = len(batch.actions)
         return UpdateInfo(  # sum_gq_td = sum_i (-2/N w_i td_i) td_i = -2 L(Q)
-            critic_loss=-0.5 * sum_gq_td, actor_loss=-sum_q_pi / n + result.bc_loss,
+            critic_loss=-0.5 * sum_gq_td, actor_loss=-sum_q_pi / n + bc_loss,
             q_mean=sum_q / n, td_abs_mean=sum_abs_td / n,
         )  # fmt: skip
 
     @staticmethod
     def _bc_loss(
         policy_action: torch.Tensor, actions: torch.Tensor, q: torch.Tensor, q_pi: torch.Tensor,
-        demo_rows: torch.Tensor, bc: BCLoss,
+        bc: BCLoss,
     ) -> torch.Tensor:
         """The cloning term (``mlp_update.MLPUpdate._bc_gradient`` writes its gradient by hand):
-        w mean|Q(s, mu(s))| / k sum_i m_i ||mu(s_i) - a_i||^2 over the k demonstration rows."""
-        keep = demo_rows.to(q.dtype)
-        k = keep.sum()
+        w mean|Q(s, mu(s))| / k sum_i m_i ||mu(s_i) - a_i||^2 over the last k rows."""
+        demo = slice(len(actions) - bc.rows, None)
+        per_row = (policy_action[demo] - actions[demo].detach()).square().sum(-1)
         if bc.q_filter:
-            keep = keep * (q.detach() > q_pi.detach()).to(keep.dtype)
-        scale = bc.weight * q_pi.detach().abs().mean() / k.clamp(min=1.0)
-        per_row = (policy_action - actions.detach()).square().sum(-1)
-        return scale * (keep * per_row).sum()
+            per_row = per_row * (q[demo].detach() > q_pi[demo].detach())
+        return q_pi.detach().abs().mean() * (bc.weight / bc.rows) * per_row.sum()
 
     def _update_autograd(
         self, batch: ReplayBatch, per_buffer: Any | None = None, bc: BCLoss | None = None
@@ -430,7 +421,6 @@ class DDPGAgent:
         """``update`` through autograd: the LSTM critic's, TD3's and SAC's, and the reference
         for the MLP's. With twin critics ``q`` and ``td`` are ``(2, B)``, row 0 for Q_1."""
         cfg = self.cfg
-        demo_rows = self._demo_rows(batch, bc)
         b = self._tensors(batch)
         obs = b["observations"]
         past_actions = b["action_windows"][:, :-1]  # empty unless the LSTM critic reads them
@@ -477,13 +467,12 @@ class DDPGAgent:
                 actor_loss = -q_pi[0].mean()
             else:
                 actor_loss = -q_pi.mean()
-            if demo_rows is not None:  # TD3's Q_1 / SAC's min of twins, as its actor loss reads
-                assert bc is not None
+            if bc is not None:  # TD3's Q_1 / SAC's min of twins, as its actor loss reads
                 q_bc, q_pi_bc = q, q_pi
                 if cfg.twin_critics:
                     q_bc, q_pi_bc = (q.amin(0), q_pi.amin(0)) if sac else (q[0], q_pi[0])
                 actor_loss = actor_loss + self._bc_loss(
-                    policy_action, b["actions"], q_bc, q_pi_bc, demo_rows, bc
+                    policy_action, b["actions"], q_bc, q_pi_bc, bc
                 )
             actor_loss.backward(inputs=self._actor_params)
             self._last_actor_loss = float(actor_loss.detach())

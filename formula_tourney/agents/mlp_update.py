@@ -41,16 +41,18 @@ aten = torch.ops.aten
 class UpdateResult(NamedTuple):
     """What the agent reads back from one update (tensors are workspace views, reused later)."""
 
-    stats: list[float]  # [sum Q(s, a), sum Q(s, mu(s)), sum dL/dQ * td (= -2 L(Q)), sum |td|]
+    # [sum Q(s, a), sum Q(s, mu(s)), sum dL/dQ * td (= -2 L(Q)), sum |td|, cloning term (or 0)]
+    stats: list[float]
     td: torch.Tensor  # (B,) y - Q(s, a)
     grad_a: torch.Tensor | None  # (B, A) grad_a Q(s_i, a_i), PER only
-    bc_loss: float = 0.0  # the cloning term's value (0 without demonstrations)
 
 
 class BCLoss(NamedTuple):
-    """Behaviour cloning in the actor's loss: its weight and whether the Q-filter applies."""
+    """Behaviour cloning in the actor's loss: its weight, the demonstration rows of every batch
+    (its last ``rows`` rows, ``replay.DemoMix``'s layout) and whether the Q-filter applies."""
 
     weight: float
+    rows: int
     q_filter: bool = True
 
 
@@ -110,15 +112,26 @@ class _Workspace:
         self.zeros = torch.zeros(B, 1, **z)  # addcmul's addend: gq in one operator
         self.y, self.td = torch.empty(B, 1, **z), torch.empty(B, 1, **z)
         self.grad_a = torch.empty(B, 3, **z)
-        self.stats = torch.empty(4, **z)
+        self.stats = torch.zeros(5, **z)  # [4]: the cloning term, written only when it is on
         self.h2_q, self.h2_pi = self.h2[:B], self.h2[B:]
         self.m2_q, self.m2_pi = self.m2[:B], self.m2[B:]
         self.q_q, self.q_rows = self.q[:B], self.q.view(2, B)
         self.gq_flat, self.td_flat = self.gq.view(-1), self.td.view(-1)
         self.stats_q, self.stats_td, self.stats_abs = self.stats[0:2], self.stats[2], self.stats[3]
+        self.stats_bc = self.stats[4]
+        self.q_pi_flat = self.q[B:].view(-1)
+        self._bc: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
         # transposed views read by the weight-gradient GEMMs (dW = g^T x)
         self.gq_t, self.g2_t, self.gc1_t = self.gq.t(), self.g2.t(), self.gc1.t()
         self.gz_t, self.ga2_t, self.ga1_t = self.gz.t(), self.ga2.t(), self.ga1.t()
+
+    def bc_buffers(self, rows: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The cloning term's buffers for the last ``rows`` rows: (a - mu) (rows, 3), the
+        Q-filter's mask (rows, 1) and the term's scale, allocated once."""
+        if self._bc is None or self._bc[0].shape[0] != rows:
+            z = {"dtype": self.q.dtype, "device": self.q.device}
+            self._bc = (torch.empty(rows, 3, **z), torch.empty(rows, 1, **z), torch.empty((), **z))
+        return self._bc
 
 
 class MLPUpdate:
@@ -206,36 +219,32 @@ class MLPUpdate:
         self._dense_backward(ws.gc1, ws.gc1_t, x, self.c_l1)
 
     @staticmethod
-    def _bc_gradient(
-        ws: _Workspace, actions: torch.Tensor, demo_rows: torch.Tensor, bc: BCLoss
-    ) -> float:
-        """Adds the cloning term's dL/dmu to ``ws.gpi`` and returns the term's value.
+    def _bc_gradient(ws: _Workspace, actions: torch.Tensor, bc: BCLoss) -> None:
+        """Adds the cloning term's dL/dmu to ``ws.gpi`` and its value to ``ws.stats_bc``.
 
-        L_bc = w mean|Q(s, mu(s))| / k sum_i m_i ||mu(s_i) - a_i||^2 over the ``k`` demonstration
-        rows, m_i = [Q(s_i, a_i) > Q(s_i, mu(s_i))] under the Q-filter; the scale is a constant
-        (no gradient through it), as in TD3+BC.
+        L_bc = w mean|Q(s, mu(s))| / k sum_i m_i ||mu(s_i) - a_i||^2 over the batch's last ``k``
+        rows (the demonstrations), m_i = [Q(s_i, a_i) > Q(s_i, mu(s_i))] under the Q-filter;
+        the scale is a constant (no gradient through it), as in TD3+BC. All on tensors: no
+        host round trip inside the update.
         """
-        keep = demo_rows.to(ws.q.dtype).view(-1, 1)
-        k = float(keep.sum())
-        if k == 0.0:
-            return 0.0
+        B, k = ws.batch, bc.rows  # noqa: N806
+        diff, keep, coef = ws.bc_buffers(k)
+        torch.sub(ws.pi[B - k:], actions[B - k:], out=diff)
         if bc.q_filter:
-            keep = keep * (ws.q_q > ws.q[ws.batch:]).to(keep.dtype)
-        coef = bc.weight * float(ws.q[ws.batch:].abs().mean()) / k
-        diff = (ws.pi - actions) * keep
-        ws.gpi.add_(diff, alpha=2.0 * coef)
-        return coef * float(diff.square().sum())
+            diff.mul_(torch.gt(ws.q_q[B - k:], ws.q[2 * B - k:], out=keep))
+        torch.linalg.vector_norm(ws.q_pi_flat, 1, out=coef).mul_(bc.weight / (B * k))
+        ws.gpi[B - k:].addcmul_(diff, coef, value=2.0)
+        torch.dot(diff.view(-1), diff.view(-1), out=ws.stats_bc).mul_(coef)
 
     def _actor_backward(
-        self, ws: _Workspace, x: torch.Tensor, bc_grad: tuple[torch.Tensor, torch.Tensor,
-                                                               BCLoss] | None = None
-    ) -> float:
+        self, ws: _Workspace, x: torch.Tensor, actions: torch.Tensor, bc: BCLoss | None
+    ) -> None:
         """Actor gradients of eq. (3): -mean Q(s, mu(s)) through the action only, plus the
-        cloning term when ``bc_grad`` = (actions, demonstration rows, its settings) is given;
-        returns the cloning term's value."""
+        cloning term ``bc`` of the demonstrated ``actions`` when it is given."""
         # dL/dmu = -1/N dQ/da at a = mu(s); the scale is applied to the (B, 3) product
         torch.mm(ws.m2_pi, self.c_act.w, out=ws.gpi).mul_(-1.0 / ws.batch)
-        bc_loss = 0.0 if bc_grad is None else self._bc_gradient(ws, *bc_grad)
+        if bc is not None:
+            self._bc_gradient(ws, actions, bc)
         aten.tanh_backward.grad_input(ws.gpi_steer, ws.actor.pi_steer, grad_input=ws.gz_steer)
         aten.sigmoid_backward.grad_input(
             ws.gpi_pedals, ws.actor.pi_pedals, grad_input=ws.gz_pedals
@@ -247,7 +256,6 @@ class MLPUpdate:
         torch.mm(ws.ga2, self.a_l2.w, out=ws.ga1)
         aten.threshold_backward.grad_input(ws.ga1, ws.a1, 0, grad_input=ws.ga1)
         self._dense_backward(ws.ga1, ws.ga1_t, x, self.a_l1)
-        return bc_loss
 
     # --- the step ------------------------------------------------------------------------------
     @torch.no_grad()
@@ -260,13 +268,12 @@ class MLPUpdate:
         discounts: torch.Tensor,
         weights: torch.Tensor,
         action_grad: bool = False,
-        demo_rows: torch.Tensor | None = None,
         bc: BCLoss | None = None,
     ) -> UpdateResult:
         """Both networks' gradients into their ``.grad`` (the optimizer step is the caller's).
 
-        Observations are windows ``(B, w, D)``; rewards, discounts and weights ``(B,)``;
-        ``demo_rows`` ``(B,)`` marks the demonstration rows the cloning term ``bc`` reads.
+        Observations are windows ``(B, w, D)``; rewards, discounts and weights ``(B,)``; ``bc``
+        clones the batch's last ``bc.rows`` rows (the demonstrations) in the actor's loss.
         """
         B = actions.shape[0]  # noqa: N806
         ws = self._workspace(B)
@@ -280,12 +287,9 @@ class MLPUpdate:
         torch.sub(ws.y, ws.q_q, out=ws.td)
         torch.addcmul(ws.zeros, ws.td, weights.view(B, 1), value=-2.0 / B, out=ws.gq)
         self._critic_backward(ws, x, actions)
-        bc_grad = None
-        if bc is not None and bc.weight > 0.0 and demo_rows is not None:
-            bc_grad = (actions, demo_rows, bc)
-        bc_loss = self._actor_backward(ws, x, bc_grad)
+        self._actor_backward(ws, x, actions, bc)
         grad_a = torch.mm(ws.m2_q, self.c_act.w, out=ws.grad_a) if action_grad else None
         torch.sum(ws.q_rows, 1, out=ws.stats_q)
         torch.dot(ws.gq_flat, ws.td_flat, out=ws.stats_td)
         torch.linalg.vector_norm(ws.td_flat, 1, out=ws.stats_abs)
-        return UpdateResult(ws.stats.tolist(), ws.td_flat, grad_a, bc_loss)
+        return UpdateResult(ws.stats.tolist(), ws.td_flat, grad_a)

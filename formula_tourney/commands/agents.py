@@ -20,6 +20,14 @@ RESULT_KEYS = (
 )  # fmt: skip
 
 
+def _demo_options(laps: int, **given: Any) -> dict[str, Any] | None:
+    """``--demo-laps`` and the demo options given: the keys left out keep the preset's (or
+    DemoSettings' defaults), so ``--preset tuned-bc --demo-laps 5`` still clones."""
+    if laps <= 0:
+        return None
+    return {"laps": laps, **{k: v for k, v in given.items() if v is not None}}
+
+
 def _parse_sets(items: list[str], what: str) -> dict[str, Any]:
     """``key=value`` pairs; values parse as JSON when they can (numbers, lists, booleans)."""
     out: dict[str, Any] = {}
@@ -100,12 +108,20 @@ def register(app: typer.Typer) -> None:
             0, "--demo-laps", help="Follower laps per train track seeding a demonstration buffer "
             "(0: no demonstrations; beyond the paper)."
         ),
-        demo_line: str = typer.Option("mincurv", help="Line the demonstrating follower drives."),
-        demo_fraction: float = typer.Option(0.5, help="Share of each batch from the demos."),
-        bc_steps: int = typer.Option(0, help="Behaviour-cloning warm-start steps (with demos)."),
+        demo_line: str = typer.Option(
+            None, help="Line the demonstrating follower drives (default: the preset's, else "
+            "mincurv)."
+        ),
+        demo_fraction: float = typer.Option(
+            None, help="Share of each batch from the demos (default: the preset's, else 0.5)."
+        ),
+        bc_steps: int = typer.Option(
+            None, help="Behaviour-cloning warm-start steps (with demos; default: the preset's, "
+            "else 0)."
+        ),
         bc_weight: float = typer.Option(
-            0.0, help="Behaviour cloning in the actor's loss all run long, Q-filtered (with "
-            "demos; 0: off; docs/agents.md)."
+            None, help="Behaviour cloning in the actor's loss all run long, Q-filtered (with "
+            "demos; default: the preset's, else 0 = off; docs/agents.md)."
         ),
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
     ) -> None:
@@ -124,8 +140,8 @@ def register(app: typer.Typer) -> None:
                       "test_max_steps": test_max_steps, "cars": cars,
                       "traffic_bots": traffic_bots,
                       "test_grip_scales": list(test_grip)},
-            demos={"laps": demo_laps, "line": demo_line, "batch_fraction": demo_fraction,
-                   "bc_steps": bc_steps, "bc_weight": bc_weight} if demo_laps > 0 else None,
+            demos=_demo_options(demo_laps, line=demo_line, batch_fraction=demo_fraction,
+                                bc_steps=bc_steps, bc_weight=bc_weight),
             preset=preset, source="train options",
         )  # fmt: skip
         if JobFolder(out).is_finished():

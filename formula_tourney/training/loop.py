@@ -133,8 +133,8 @@ def train(
             bc = behaviour_clone(agent, demos.buffer, spec.demos.bc_steps,
                                  agent_cfg.batch_size, spec.demos.bc_lr)  # fmt: skip
             demo_summary.update(bc_mse_before=bc[0], bc_mse_after=bc[1])
-        if spec.demos.bc_weight > 0.0 and mix.demo_rows > 0:
-            bc_loss = BCLoss(spec.demos.bc_weight, spec.demos.bc_q_filter)
+        if spec.demos.bc_weight > 0.0:  # RunSpec checked that every batch has demo rows
+            bc_loss = BCLoss(spec.demos.bc_weight, mix.demo_rows, spec.demos.bc_q_filter)
         demo_seconds = time.perf_counter() - t_demo
 
     out.mkdir(parents=True, exist_ok=True)

@@ -164,13 +164,6 @@ class DemoSettings(_Frozen):
         "the demonstrator once the critic knows better.",
     )  # fmt: skip
 
-    @model_validator(mode="after")
-    def _cloning_needs_demo_rows(self) -> DemoSettings:
-        if self.bc_weight > 0.0 and self.batch_fraction == 0.0:
-            raise ValueError("bc_weight > 0 clones the batch's demonstration rows: it needs "
-                             "batch_fraction > 0")  # fmt: skip
-        return self
-
     def demo_rows(self, batch_size: int) -> int:
         """Rows of a batch of ``batch_size`` drawn from the demonstrations."""
         return int(round(batch_size * self.batch_fraction))
@@ -228,6 +221,12 @@ class RunSpec(_Frozen):
                 raise ValueError(
                     f"demos.batch_fraction {self.demos.batch_fraction} leaves no online rows "
                     f"in a batch of {self.agent.batch_size}"
+                )
+            if self.demos.bc_weight > 0.0 and rows == 0:
+                raise ValueError(
+                    f"demos.bc_weight {self.demos.bc_weight} clones the batch's demonstration "
+                    f"rows, but batch_fraction {self.demos.batch_fraction} gives none in a "
+                    f"batch of {self.agent.batch_size}"
                 )
         return self
 
@@ -343,14 +342,15 @@ def build_run_spec(
     (not built) by ``sim.catalog.check_track_name``; relative file paths resolve against
     ``track_base_dir``. ``demos`` holds keys of :class:`DemoSettings` (an empty mapping takes
     its defaults; None: no demonstrations). ``preset`` (``training.presets``) supplies agent
-    overrides, schedule keys and demonstrations first; the caller's own settings win over it.
+    overrides, schedule keys and demonstrations first; the caller's own settings win over it,
+    key by key (``demos`` too: a preset's demonstrations with one key changed).
     """
     chosen = get_preset(preset)
     preset_agent = chosen.agent_overrides(get_variant(variant).family, named_settings(variant))
     agent = get_variant(variant, {**preset_agent, **dict(overrides or {})})
     schedule = {**chosen.schedule, **dict(schedule or {})}
-    if demos is None and chosen.demos is not None:
-        demos = chosen.demos
+    if chosen.demos is not None and not isinstance(demos, DemoSettings):
+        demos = {**chosen.demos, **dict(demos or {})}  # the caller's keys win, one by one
     env = _env_settings(env_overrides, source)
     unknown = sorted(set(schedule or {}) - set(SCHEDULE_KEYS))
     if unknown:
