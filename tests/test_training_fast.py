@@ -85,6 +85,49 @@ def test_n_car_collection_equals_n_single_car_collections() -> None:
     assert len(owners) == len(set(shared.episode.tolist()))  # no episode id in two lanes
 
 
+@pytest.mark.parametrize("n_cars", [1, 3])
+def test_crash_penalty_lowers_the_stored_reward_of_early_ends_only(n_cars: int) -> None:
+    """With ``crash_penalty`` P the stored reward is (r - P) x scale on a terminated step and
+    r x scale on every other (a max-steps end included), for one car and for N; P = 0 stores
+    exactly what the paper's rule does."""
+    penalty, scale = 40.0, 0.5
+    config = {"track": ring_track("ring"), "max_steps": 9, "random_start": False}
+    kw = dict(gamma=0.9, n_step=1, window=1, bootstrap_on_truncation=True, seed=0)
+    stored: dict[float, ReplayBuffer] = {}
+    for p in (0.0, penalty):
+        buf = ReplayBuffer(60 * n_cars, 29, 3, lanes=n_cars, **kw)  # type: ignore[arg-type]
+        if n_cars == 1:
+            col = SingleCarCollector({"ring": FormulaRacingEnv(config)}, ["ring"],
+                                     np.random.default_rng(0), buf, 1, scale, p)  # fmt: skip
+        else:
+            col = VectorCollector([("ring", FormulaRacingVectorEnv(n_cars, config))], [0], buf,
+                                  1, scale, p)  # fmt: skip
+        for k in range(25):  # one car: weave to max steps (9), then crash; N: each its way
+            drivers = [1 if k < 9 else 2] if n_cars == 1 else [2 - c for c in range(n_cars)]
+            col.step([_scripted(d, w[-1]) for d, w in zip(drivers, col.windows, strict=True)])
+        stored[p] = buf
+    plain, hit = stored[0.0], stored[penalty]
+    term = plain.terminated[: len(plain)].astype(bool)
+    trunc = plain.truncated[: len(plain)].astype(bool)
+    assert term.sum() >= 1 and trunc.sum() >= 1  # both kinds of end were stored
+    np.testing.assert_array_equal(hit.terminated[: len(hit)], plain.terminated[: len(plain)])
+    rows = np.arange(len(plain))
+    r_plain = plain.gather(rows, np.ones(len(rows))).rewards
+    r_hit = hit.gather(rows, np.ones(len(rows))).rewards
+    np.testing.assert_allclose(r_hit[term], r_plain[term] - penalty * scale, rtol=0, atol=1e-5)
+    np.testing.assert_array_equal(r_hit[~term], r_plain[~term])
+    assert r_plain[term].max() < 0  # the paper's -1 x scale on an off-track end
+
+
+def test_a_crash_penalty_is_written_and_read_back_and_refused_when_negative() -> None:
+    spec = build_run_spec(variant="WIN1", overrides={"crash_penalty": 25.0},
+                          train_tracks=["oval"])  # fmt: skip
+    assert spec.to_json()["agent"]["crash_penalty"] == 25.0
+    assert RunSpec.from_json(spec.to_json(), "x").agent.crash_penalty == 25.0
+    with pytest.raises(UserInputError, match="crash_penalty"):
+        build_run_spec(variant="WIN1", overrides={"crash_penalty": -1.0}, train_tracks=["oval"])
+
+
 def test_cars_split_over_train_tracks_and_need_one_each(ring_tracks) -> None:
     assert split_cars(5, ["a", "b", "a"]) == [("a", 3), ("b", 2)]
     with pytest.raises(UserInputError, match="at least the number of train tracks"):
@@ -160,6 +203,7 @@ def test_default_run_reproduces_the_numbers_recorded_before(tmp_path, ring_track
     want = RECORDED[variant]
     # the new settings stay out of config.json and the tournament's hash at their defaults
     assert "demos" not in spec.to_json() and "cars" not in spec.to_json()["schedule"]
+    assert "crash_penalty" not in spec.to_json()["agent"]
     loop.train(spec, tmp_path / "job")
     eps = pd.read_parquet(tmp_path / "job" / "episodes.parquet")
     tests = pd.read_parquet(tmp_path / "job" / "tests.parquet")

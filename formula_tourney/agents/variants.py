@@ -120,6 +120,15 @@ class AgentConfig(BaseModel):
         le=1.0,
         description="Soft target update: theta' <- tau theta + (1-tau) theta'.",
     )
+    crash_penalty: float = Field(
+        0.0,
+        ge=0.0,
+        le=100_000.0,
+        description="Beyond the paper: subtracted from the reward (env units, before "
+        "reward_scale) of every transition that ends its episode early (off track, backwards, "
+        "slow), so the critic sees a crash as costlier than the paper's -1 plus the lost "
+        "future; 0: the paper's rewards, stored bit for bit as before.",
+    )
     actor_lr: float = Field(1e-4, gt=0.0, description="Adam learning rate of the actor.")
     critic_lr: float = Field(1e-3, gt=0.0, description="Adam learning rate of the critic.")
     batch_size: int = Field(256, ge=1, le=65536, description="Minibatch size N per update.")

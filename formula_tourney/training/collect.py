@@ -1,10 +1,11 @@
 """Driving cars into the replay buffer: one car (FormulaRacing-v0) or N cars (the vector env).
 
 Both collectors take one action per car, step their env(s), store each car's transition in the
-car's lane of the buffer with the reward scaled, keep each car's observation window (edge-padded
-at its episode's start, exactly as ``agents.replay.ObservationWindow`` and the buffer build it),
-and hand back the car-episodes that ended. The training loop owns acting, exploration and
-learning (and closes the envs); a test drives scripted actions through the same ``step``.
+car's lane of the buffer with the reward of :func:`replay_reward`, keep each car's observation
+window (edge-padded at its episode's start, exactly as ``agents.replay.ObservationWindow`` and
+the buffer build it), and hand back the car-episodes that ended. The training loop owns acting,
+exploration and learning (and closes the envs); a test drives scripted actions through the same
+``step``.
 
 * :class:`SingleCarCollector` is the paper's loop: one env per train track, a track and a reset
   seed drawn per episode.
@@ -19,11 +20,25 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
 from formula_tourney.agents.replay import ObservationWindow, ReplayBuffer
+
+RewardLike = TypeVar("RewardLike", float, np.ndarray)
+
+
+def replay_reward(
+    reward: RewardLike, terminated: bool | np.ndarray, reward_scale: float, crash_penalty: float
+) -> RewardLike:
+    """The reward a transition is stored with: the env's, less ``crash_penalty`` on an early
+    end, times ``reward_scale``. The one place that rule lives: both collectors and the
+    demonstrations store through it, so a demonstration and an own transition weigh alike.
+    Without a penalty the product is the paper's, bit for bit."""
+    if crash_penalty:
+        reward = reward - crash_penalty * np.asarray(terminated, dtype=np.float64)
+    return reward * reward_scale
 
 
 @dataclass
@@ -62,12 +77,14 @@ class SingleCarCollector:
         buffer: ReplayBuffer,
         window: int,
         reward_scale: float,
+        crash_penalty: float = 0.0,
     ) -> None:
         self.envs = envs
         self.train_tracks = list(train_tracks)
         self.rng = rng
         self.buffer = buffer
         self.reward_scale = reward_scale
+        self.crash_penalty = crash_penalty
         self.window = ObservationWindow(window)
         self.stored = 0
         self.started = [0]  # cars whose episode began at the last reset or step
@@ -90,10 +107,9 @@ class SingleCarCollector:
         """Apply ``actions[0]``, store the transition, start a new episode after an end."""
         action = actions[0]
         next_obs, reward, terminated, truncated, info = self.env.step(action)
-        self.buffer.add(
-            self.obs, action, float(reward) * self.reward_scale, next_obs, bool(terminated),
-            bool(truncated),
-        )  # fmt: skip
+        stored = replay_reward(float(reward), bool(terminated), self.reward_scale,
+                               self.crash_penalty)  # fmt: skip
+        self.buffer.add(self.obs, action, stored, next_obs, bool(terminated), bool(truncated))
         self.stored = 1
         self.steps += 1
         self.reward += float(reward)
@@ -122,10 +138,12 @@ class VectorCollector:
         buffer: ReplayBuffer,
         window: int,
         reward_scale: float,
+        crash_penalty: float = 0.0,
     ) -> None:
         self.groups = list(groups)
         self.buffer = buffer
         self.reward_scale = reward_scale
+        self.crash_penalty = crash_penalty
         sizes = [env.num_envs for _, env in self.groups]
         self.cars = n = int(sum(sizes))
         if buffer.lanes != n:
@@ -164,17 +182,16 @@ class VectorCollector:
                                              for k in (1, 2, 3))  # fmt: skip
             infos = [o[4] for o in outs]
         live = ~self.needs_reset
+        stored = replay_reward(reward, terminated, self.reward_scale, self.crash_penalty)
         if live.all():
             lanes = self._lanes
-            self.buffer.add_cars(
-                lanes, self.obs, actions, reward * self.reward_scale, next_obs, terminated,
-                truncated,
-            )  # fmt: skip
+            self.buffer.add_cars(lanes, self.obs, actions, stored, next_obs, terminated,
+                                 truncated)  # fmt: skip
         else:
             lanes = live.nonzero()[0]
             self.buffer.add_cars(
-                lanes, self.obs[lanes], actions[lanes], reward[lanes] * self.reward_scale,
-                next_obs[lanes], terminated[lanes], truncated[lanes],
+                lanes, self.obs[lanes], actions[lanes], stored[lanes], next_obs[lanes],
+                terminated[lanes], truncated[lanes],
             )  # fmt: skip
         self.stored = len(lanes)
         self.reward[lanes] += reward[lanes]

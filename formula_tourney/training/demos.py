@@ -28,6 +28,7 @@ from formula_tourney.agents.replay import ReplayBuffer
 from formula_tourney.bots.follower import Follower, FollowerConfig, _car_state
 from formula_tourney.bots.reference import reference_offsets
 from formula_tourney.sim.env import DEFAULT_START_BEFORE_LINE_M
+from formula_tourney.training.collect import replay_reward
 from formula_tourney.training.envs import RunEnvs
 from formula_tourney.training.spec import DEMO_BOT, RunSpec
 
@@ -94,10 +95,12 @@ def drive_laps(
     buffer: ReplayBuffer | None = None,
     reward_scale: float = 1.0,
     start_s_m: float | None = None,
+    crash_penalty: float = 0.0,
 ) -> DemoDrive:
     """Let ``bot`` drive ``env`` until ``laps`` timed laps are done (or ``step_cap`` steps),
     resetting after each end with a seed drawn from ``rng``; every step goes into ``buffer``
-    (reward times ``reward_scale``) when one is given."""
+    (with the reward of ``training.collect.replay_reward``, as the agent's own) when one is
+    given."""
     drive = DemoDrive(track=track)
     options = {} if start_s_m is None else {"start_s_m": float(start_s_m)}
     while len(drive.lap_times_s) < laps and drive.steps < step_cap:
@@ -111,8 +114,9 @@ def drive_laps(
             drive.steps += 1
             ended = bool(terminated or truncated)
             if buffer is not None:
-                buffer.add(obs, action, float(reward) * reward_scale, next_obs, bool(terminated),
-                           bool(truncated))  # fmt: skip
+                stored = replay_reward(float(reward), bool(terminated), reward_scale,
+                                       crash_penalty)  # fmt: skip
+                buffer.add(obs, action, stored, next_obs, bool(terminated), bool(truncated))
             done = len(drive.lap_times_s) + int(info["laps"]) >= laps
             if ended or done or drive.steps >= step_cap:
                 break
@@ -153,7 +157,7 @@ def collect_demonstrations(
     for name in tracks:
         env = envs.make(name, test=False)
         drives[name] = drive_laps(name, env, bots[name], settings.laps, rng, caps[name], buffer,
-                                  cfg.reward_scale)  # fmt: skip
+                                  cfg.reward_scale, crash_penalty=cfg.crash_penalty)  # fmt: skip
         env.close()
     key = spec.key_track
     if key in drives:

@@ -236,11 +236,12 @@ def train(
     collector: SingleCarCollector | VectorCollector
     if cars == 1:
         collector = SingleCarCollector(train_envs, spec.train_tracks, rng, buffer,
-                                       agent_cfg.window, agent_cfg.reward_scale)  # fmt: skip
+                                       agent_cfg.window, agent_cfg.reward_scale,
+                                       agent_cfg.crash_penalty)  # fmt: skip
     else:
         collector = VectorCollector(
             list(train_envs.items()), [int(rng.integers(2**31 - 1)) for _ in train_envs],
-            buffer, agent_cfg.window, agent_cfg.reward_scale,
+            buffer, agent_cfg.window, agent_cfg.reward_scale, agent_cfg.crash_penalty,
         )  # fmt: skip
     stopped_early = False
     epsilon = 1.0

@@ -12,11 +12,11 @@ the env's settings (``sim.config.EnvSettings``), the reference line and LAC, the
 ...) are not env settings at all, so setup and override can never both set one.
 
 Settings added after results layout 2 (``schedule.cars``, ``schedule.env_steps``,
-``schedule.test_grip_scales``,
-``schedule.traffic_bots``, ``demos``, the env's ``grip_scale_range`` and ``grip_drying``) are
-left out of :meth:`RunSpec.to_json` while at their defaults: a default run's ``config.json``,
-checkpoints and :meth:`RunSpec.digest` are byte for byte what they were before those settings
-existed, so a resumed tournament still recognises its finished jobs.
+``schedule.test_grip_scales``, ``schedule.traffic_bots``, ``demos``, the agent's
+``crash_penalty``, the env's ``grip_scale_range`` and ``grip_drying``) are left out of
+:meth:`RunSpec.to_json` while at their defaults: a default run's ``config.json``, checkpoints and
+:meth:`RunSpec.digest` are byte for byte what they were before those settings existed, so a
+resumed tournament still recognises its finished jobs.
 """
 
 from __future__ import annotations
@@ -276,6 +276,8 @@ class RunSpec(_Frozen):
             for key, default in (("bc_weight", 0.0), ("bc_q_filter", True)):
                 if data["demos"][key] == default:
                     del data["demos"][key]
+        if data["agent"]["crash_penalty"] == 0.0:  # an agent key newer than layout 2
+            del data["agent"]["crash_penalty"]
         if data["schedule"]["cars"] == 1:
             del data["schedule"]["cars"]
         if data["schedule"]["env_steps"] is None:
