@@ -31,7 +31,12 @@ from formula_tourney.results.layout import LAST_CHECKPOINT
 from formula_tourney.sim.env import FormulaRacingEnv, FormulaRacingVectorEnv
 from formula_tourney.training import envs as run_envs
 from formula_tourney.training import loop
-from formula_tourney.training.collect import SingleCarCollector, VectorCollector, split_cars
+from formula_tourney.training.collect import (
+    RewardRule,
+    SingleCarCollector,
+    VectorCollector,
+    split_cars,
+)
 from formula_tourney.training.demos import behaviour_clone, collect_demonstrations
 from formula_tourney.training.spec import RunSpec, build_run_spec
 
@@ -52,7 +57,8 @@ def test_n_car_collection_equals_n_single_car_collections() -> None:
     config = {"track": ring_track("ring"), "max_steps": 9, "random_start": False}
     kw = dict(gamma=0.9, n_step=3, window=4, bootstrap_on_truncation=True, seed=0)
     shared = ReplayBuffer(n_cars * lane, 29, 3, lanes=n_cars, **kw)  # type: ignore[arg-type]
-    vec = VectorCollector([("ring", FormulaRacingVectorEnv(n_cars, config))], [0], shared, 4, scale)
+    vec = VectorCollector([("ring", FormulaRacingVectorEnv(n_cars, config))], [0], shared, 4,
+                          RewardRule(scale))  # fmt: skip
     stored = np.zeros(n_cars, int)
     ends = {"terminated": 0, "truncated": 0}
     for _ in range(steps):
@@ -65,8 +71,9 @@ def test_n_car_collection_equals_n_single_car_collections() -> None:
     assert ends["terminated"] > 0 and ends["truncated"] > 0 and stored.min() > lane  # wrapped
     for car in range(n_cars):
         alone = ReplayBuffer(lane, 29, 3, **kw)  # type: ignore[arg-type]
-        one = SingleCarCollector({"ring": FormulaRacingEnv(config)}, ["ring"],
-                                 np.random.default_rng(car), alone, 4, scale)  # fmt: skip
+        rng = np.random.default_rng(car)
+        one = SingleCarCollector({"ring": FormulaRacingEnv(config)}, ["ring"], rng, alone, 4,
+                                 RewardRule(scale))  # fmt: skip
         for _ in range(stored[car]):
             one.step([_scripted(car, one.windows[0][-1])])
         local = np.arange(lane)
@@ -97,11 +104,12 @@ def test_crash_penalty_lowers_the_stored_reward_of_early_ends_only(n_cars: int) 
     for p in (0.0, penalty):
         buf = ReplayBuffer(60 * n_cars, 29, 3, lanes=n_cars, **kw)  # type: ignore[arg-type]
         if n_cars == 1:
-            col = SingleCarCollector({"ring": FormulaRacingEnv(config)}, ["ring"],
-                                     np.random.default_rng(0), buf, 1, scale, p)  # fmt: skip
+            rng = np.random.default_rng(0)
+            col = SingleCarCollector({"ring": FormulaRacingEnv(config)}, ["ring"], rng, buf, 1,
+                                     RewardRule(scale, p))  # fmt: skip
         else:
             col = VectorCollector([("ring", FormulaRacingVectorEnv(n_cars, config))], [0], buf,
-                                  1, scale, p)  # fmt: skip
+                                  1, RewardRule(scale, p))  # fmt: skip
         for k in range(25):  # one car: weave to max steps (9), then crash; N: each its way
             drivers = [1 if k < 9 else 2] if n_cars == 1 else [2 - c for c in range(n_cars)]
             col.step([_scripted(d, w[-1]) for d, w in zip(drivers, col.windows, strict=True)])
@@ -117,6 +125,21 @@ def test_crash_penalty_lowers_the_stored_reward_of_early_ends_only(n_cars: int) 
     np.testing.assert_allclose(r_hit[term], r_plain[term] - penalty * scale, rtol=0, atol=1e-5)
     np.testing.assert_array_equal(r_hit[~term], r_plain[~term])
     assert r_plain[term].max() < 0  # the paper's -1 x scale on an off-track end
+
+
+def test_the_reward_rule_is_the_paper_product_without_a_penalty_and_read_from_the_agent() -> None:
+    """Without a penalty the stored reward is exactly r x scale (the paper's rule, also on a
+    crash); the rule an agent declares carries both of its reward settings."""
+    rewards = np.array([71.25, -1.0, 0.0, 3.0e-7])
+    ends = np.array([False, True, True, False])
+    np.testing.assert_array_equal(RewardRule(0.02)(rewards, ends), rewards * 0.02)
+    assert RewardRule(0.02)(-1.0, True) == -1.0 * 0.02
+    np.testing.assert_array_equal(RewardRule(0.5, 10.0)(rewards, ends),
+                                  [35.625, -5.5, -5.0, 1.5e-7])  # fmt: skip
+    cfg = build_run_spec(variant="WIN1", overrides={"crash_penalty": 25.0, "reward_scale": 0.1},
+                         train_tracks=["oval"]).agent  # fmt: skip
+    assert RewardRule.of(cfg) == RewardRule(scale=0.1, crash_penalty=25.0)
+    assert RewardRule.of(get_variant("WIN1")).crash_penalty == 0.0
 
 
 def test_a_crash_penalty_is_written_and_read_back_and_refused_when_negative() -> None:

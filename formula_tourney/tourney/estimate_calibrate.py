@@ -32,7 +32,7 @@ import numpy as np
 from formula_tourney.agents.ddpg import DDPGAgent, configure_torch, save_checkpoint
 from formula_tourney.agents.noise import BrakeExplorationNoise
 from formula_tourney.agents.replay import make_buffer
-from formula_tourney.training.collect import SingleCarCollector
+from formula_tourney.training.collect import RewardRule, SingleCarCollector
 from formula_tourney.training.envs import RunEnvs
 from formula_tourney.training.evaluate import run_test_episode, start_positions
 from formula_tourney.training.spec import RunSpec
@@ -186,7 +186,7 @@ def calibrate(spec: RunSpec, seconds: float = 1.0, chunk_steps: int = 100,
         cfg.brake_explore_hold_steps,
     )  # fmt: skip
     collector = SingleCarCollector({track: env}, [track], np.random.default_rng(seqs[0]), buffer,
-                                   cfg.window, cfg.reward_scale)  # fmt: skip
+                                   cfg.window, RewardRule.of(cfg))  # fmt: skip
     setup_s = time.perf_counter() - started
 
     lengths: list[int] = []

@@ -1,7 +1,7 @@
 """Driving cars into the replay buffer: one car (FormulaRacing-v0) or N cars (the vector env).
 
 Both collectors take one action per car, step their env(s), store each car's transition in the
-car's lane of the buffer with the reward of :func:`replay_reward`, keep each car's observation
+car's lane of the buffer with the reward of a :class:`RewardRule`, keep each car's observation
 window (edge-padded at its episode's start, exactly as ``agents.replay.ObservationWindow`` and
 the buffer build it), and hand back the car-episodes that ended. The training loop owns acting,
 exploration and learning (and closes the envs); a test drives scripted actions through the same
@@ -25,20 +25,31 @@ from typing import Any, TypeVar
 import numpy as np
 
 from formula_tourney.agents.replay import ObservationWindow, ReplayBuffer
+from formula_tourney.agents.variants import AgentConfig
 
 RewardLike = TypeVar("RewardLike", float, np.ndarray)
 
 
-def replay_reward(
-    reward: RewardLike, terminated: bool | np.ndarray, reward_scale: float, crash_penalty: float
-) -> RewardLike:
-    """The reward a transition is stored with: the env's, less ``crash_penalty`` on an early
-    end, times ``reward_scale``. The one place that rule lives: both collectors and the
-    demonstrations store through it, so a demonstration and an own transition weigh alike.
+@dataclass(frozen=True)
+class RewardRule:
+    """How the env's reward becomes the reward a transition is stored with: less
+    ``crash_penalty`` on an early end, times ``scale``. The one owner of that rule: both
+    collectors and the demonstrations store through it, so a demonstration and an own
+    transition weigh alike, and a new reward setting is added here, not at every call site.
     Without a penalty the product is the paper's, bit for bit."""
-    if crash_penalty:
-        reward = reward - crash_penalty * np.asarray(terminated, dtype=np.float64)
-    return reward * reward_scale
+
+    scale: float = 1.0
+    crash_penalty: float = 0.0
+
+    @classmethod
+    def of(cls, cfg: AgentConfig) -> RewardRule:
+        """The rule an agent's settings declare."""
+        return cls(scale=cfg.reward_scale, crash_penalty=cfg.crash_penalty)
+
+    def __call__(self, reward: RewardLike, terminated: bool | np.ndarray) -> RewardLike:
+        if self.crash_penalty:
+            reward = reward - self.crash_penalty * np.asarray(terminated, dtype=np.float64)
+        return reward * self.scale
 
 
 @dataclass
@@ -76,15 +87,13 @@ class SingleCarCollector:
         rng: np.random.Generator,
         buffer: ReplayBuffer,
         window: int,
-        reward_scale: float,
-        crash_penalty: float = 0.0,
+        reward_rule: RewardRule,
     ) -> None:
         self.envs = envs
         self.train_tracks = list(train_tracks)
         self.rng = rng
         self.buffer = buffer
-        self.reward_scale = reward_scale
-        self.crash_penalty = crash_penalty
+        self.reward_rule = reward_rule
         self.window = ObservationWindow(window)
         self.stored = 0
         self.started = [0]  # cars whose episode began at the last reset or step
@@ -107,8 +116,7 @@ class SingleCarCollector:
         """Apply ``actions[0]``, store the transition, start a new episode after an end."""
         action = actions[0]
         next_obs, reward, terminated, truncated, info = self.env.step(action)
-        stored = replay_reward(float(reward), bool(terminated), self.reward_scale,
-                               self.crash_penalty)  # fmt: skip
+        stored = self.reward_rule(float(reward), bool(terminated))
         self.buffer.add(self.obs, action, stored, next_obs, bool(terminated), bool(truncated))
         self.stored = 1
         self.steps += 1
@@ -137,13 +145,11 @@ class VectorCollector:
         seeds: Sequence[int],
         buffer: ReplayBuffer,
         window: int,
-        reward_scale: float,
-        crash_penalty: float = 0.0,
+        reward_rule: RewardRule,
     ) -> None:
         self.groups = list(groups)
         self.buffer = buffer
-        self.reward_scale = reward_scale
-        self.crash_penalty = crash_penalty
+        self.reward_rule = reward_rule
         sizes = [env.num_envs for _, env in self.groups]
         self.cars = n = int(sum(sizes))
         if buffer.lanes != n:
@@ -182,7 +188,7 @@ class VectorCollector:
                                              for k in (1, 2, 3))  # fmt: skip
             infos = [o[4] for o in outs]
         live = ~self.needs_reset
-        stored = replay_reward(reward, terminated, self.reward_scale, self.crash_penalty)
+        stored = self.reward_rule(reward, terminated)
         if live.all():
             lanes = self._lanes
             self.buffer.add_cars(lanes, self.obs, actions, stored, next_obs, terminated,

@@ -28,7 +28,7 @@ from formula_tourney.agents.replay import ReplayBuffer
 from formula_tourney.bots.follower import Follower, FollowerConfig, _car_state
 from formula_tourney.bots.reference import reference_offsets
 from formula_tourney.sim.env import DEFAULT_START_BEFORE_LINE_M
-from formula_tourney.training.collect import replay_reward
+from formula_tourney.training.collect import RewardRule
 from formula_tourney.training.envs import RunEnvs
 from formula_tourney.training.spec import DEMO_BOT, RunSpec
 
@@ -93,15 +93,15 @@ def drive_laps(
     rng: np.random.Generator,
     step_cap: int,
     buffer: ReplayBuffer | None = None,
-    reward_scale: float = 1.0,
+    reward_rule: RewardRule | None = None,
     start_s_m: float | None = None,
-    crash_penalty: float = 0.0,
 ) -> DemoDrive:
     """Let ``bot`` drive ``env`` until ``laps`` timed laps are done (or ``step_cap`` steps),
     resetting after each end with a seed drawn from ``rng``; every step goes into ``buffer``
-    (with the reward of ``training.collect.replay_reward``, as the agent's own) when one is
-    given."""
+    (with the reward of ``reward_rule``, as the agent's own; the env's reward without one)
+    when one is given."""
     drive = DemoDrive(track=track)
+    store = reward_rule or RewardRule()
     options = {} if start_s_m is None else {"start_s_m": float(start_s_m)}
     while len(drive.lap_times_s) < laps and drive.steps < step_cap:
         obs, info = env.reset(seed=int(rng.integers(2**31 - 1)), options=options)
@@ -114,8 +114,7 @@ def drive_laps(
             drive.steps += 1
             ended = bool(terminated or truncated)
             if buffer is not None:
-                stored = replay_reward(float(reward), bool(terminated), reward_scale,
-                                       crash_penalty)  # fmt: skip
+                stored = store(float(reward), bool(terminated))
                 buffer.add(obs, action, stored, next_obs, bool(terminated), bool(truncated))
             done = len(drive.lap_times_s) + int(info["laps"]) >= laps
             if ended or done or drive.steps >= step_cap:
@@ -157,7 +156,7 @@ def collect_demonstrations(
     for name in tracks:
         env = envs.make(name, test=False)
         drives[name] = drive_laps(name, env, bots[name], settings.laps, rng, caps[name], buffer,
-                                  cfg.reward_scale, crash_penalty=cfg.crash_penalty)  # fmt: skip
+                                  RewardRule.of(cfg))  # fmt: skip
         env.close()
     key = spec.key_track
     if key in drives:

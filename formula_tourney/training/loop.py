@@ -35,7 +35,12 @@ from formula_tourney.agents.replay import DemoMix, make_buffer
 from formula_tourney.results.folder import JobFolder
 from formula_tourney.results.layout import BEST_CHECKPOINT, LAST_CHECKPOINT
 from formula_tourney.results.metrics import model_clean_lap_s
-from formula_tourney.training.collect import SingleCarCollector, VectorCollector, split_cars
+from formula_tourney.training.collect import (
+    RewardRule,
+    SingleCarCollector,
+    VectorCollector,
+    split_cars,
+)
 from formula_tourney.training.demos import behaviour_clone, collect_demonstrations
 from formula_tourney.training.envs import RunEnvs
 from formula_tourney.training.evaluate import (
@@ -234,14 +239,14 @@ def train(
                 writer.add_scalar("q/td_abs", stats.td_abs_mean, agent.updates)
 
     collector: SingleCarCollector | VectorCollector
+    reward_rule = RewardRule.of(agent_cfg)
     if cars == 1:
         collector = SingleCarCollector(train_envs, spec.train_tracks, rng, buffer,
-                                       agent_cfg.window, agent_cfg.reward_scale,
-                                       agent_cfg.crash_penalty)  # fmt: skip
+                                       agent_cfg.window, reward_rule)  # fmt: skip
     else:
         collector = VectorCollector(
             list(train_envs.items()), [int(rng.integers(2**31 - 1)) for _ in train_envs],
-            buffer, agent_cfg.window, agent_cfg.reward_scale, agent_cfg.crash_penalty,
+            buffer, agent_cfg.window, reward_rule,
         )  # fmt: skip
     stopped_early = False
     epsilon = 1.0
