@@ -9,6 +9,7 @@ a fixed seed so that the same results always print the same report.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -143,18 +144,15 @@ def band(values: np.ndarray, confidence: float = 0.95, seed: int = DEFAULT_SEED,
     arr = np.asarray(values, dtype=float)
     if arr.ndim != 2 or arr.shape[0] == 0:
         raise ValueError("band() needs a (seeds, points) array")
-    with np.errstate(all="ignore"):
-        import warnings
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", category=RuntimeWarning)
-            mean = np.nanmean(arr, axis=0)
-            if arr.shape[0] < 2:
-                return mean, np.full_like(mean, np.nan), np.full_like(mean, np.nan)
-            rng = np.random.default_rng(seed)
-            idx = rng.integers(0, arr.shape[0], size=(n_resamples, arr.shape[0]))
-            boot = np.nanmean(arr[idx], axis=1)
-            alpha = (1.0 - confidence) / 2.0
-            low = np.nanquantile(boot, alpha, axis=0)
-            high = np.nanquantile(boot, 1.0 - alpha, axis=0)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", category=RuntimeWarning)
+        mean = np.nanmean(arr, axis=0)
+        if arr.shape[0] < 2:
+            return mean, np.full_like(mean, np.nan), np.full_like(mean, np.nan)
+        rng = np.random.default_rng(seed)
+        idx = rng.integers(0, arr.shape[0], size=(n_resamples, arr.shape[0]))
+        boot = np.nanmean(arr[idx], axis=1)
+        alpha = (1.0 - confidence) / 2.0
+        low = np.nanquantile(boot, alpha, axis=0)
+        high = np.nanquantile(boot, 1.0 - alpha, axis=0)
     return mean, low, high

@@ -485,8 +485,6 @@ def _heights(raw_segments, segs: list[SegmentSpec], cuts: list[tuple[float, int]
              label: str) -> list[SegmentSpec]:
     """Segments with TORCS' heights, profile slopes and banking (module docstring); unchanged
     when the file has none (every height and banking 0: a flat track stays flat)."""
-    import dataclasses
-
     zel = zer = 0.0  # previous segment's end heights, left and right edge
     etl = etr = 0.0  # previous segment's end slopes (TORCS' tangents)
     grade = None  # sticky, as in TORCS
@@ -556,5 +554,5 @@ def _heights(raw_segments, segs: list[SegmentSpec], cuts: list[tuple[float, int]
             scale = length / seg.arc_length_m * 100.0
             extra["grade_start_pct"] = t0 * scale
             extra["grade_end_pct"] = t1 * scale
-        out.append(dataclasses.replace(seg, **extra))
+        out.append(replace(seg, **extra))
     return out

@@ -16,6 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import optuna
 from optuna.study import MaxTrialsCallback
 from optuna.trial import TrialState
@@ -107,8 +108,6 @@ def warm_up(run: Any) -> None:
     """Build and step the run's env once before the clock starts (torch, the track, its line
     and the numba kernels load here), so a worker's first trial pays no more than its later
     ones."""
-    import numpy as np
-
     import formula_tourney.training.loop  # noqa: F401  (torch)
     from formula_tourney.training.envs import RunEnvs
 
