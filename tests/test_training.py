@@ -348,8 +348,16 @@ def test_tuned_preset_is_the_committed_studies_draw(ring_tracks) -> None:
     assert sac_study["variant"] == "SAC" and sac.hidden == (128, 128)
     for key, value in sac_study["best"]["params"].items():
         assert getattr(sac, key) == pytest.approx(value, rel=0.02), key
+    # LSTM: the oval study's best trial (record tune_oval_lstm-LSTM4.json), rounded
+    lstm_study = json.loads((studies / "tune_oval_lstm-LSTM4.json").read_text())
+    assert lstm_study["variant"] == "LSTM4"
+    for variant in ("LSTM4", "LSTM8"):
+        lstm = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned").agent
+        assert lstm.lstm_critic and lstm.hidden == (128, 128)
+        for key, value in lstm_study["best"]["params"].items():
+            assert getattr(lstm, key) == pytest.approx(value, rel=0.02), key
     # MS and TD3 had studies whose best trials did not hold on 4 seeds: `fast-small` as it is
-    for variant in ("MS3", "TD3", "LSTM4"):
+    for variant in ("MS3", "TD3"):
         small = build_run_spec(variant=variant, train_tracks=["ringA"], preset="fast-small")
         tuned = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned")
         assert tuned.agent == small.agent, variant
@@ -359,7 +367,7 @@ def test_tuned_bc_is_tuned_with_cloned_demonstrations(ring_tracks) -> None:
     """`tuned-bc` trains each variant exactly as `tuned` does, plus the follower's laps on the
     min-curvature line in a quarter of every batch and Q-filtered cloning in the actor's loss;
     its runs say so (with demos beyond the paper) and their config carries the weight."""
-    for variant in ("WIN1", "PER1M", "SAC"):
+    for variant in ("WIN1", "PER1M", "SAC", "LSTM4"):
         tuned = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned")
         bc = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned-bc")
         assert bc.agent == tuned.agent and tuned.demos is None

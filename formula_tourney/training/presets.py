@@ -91,6 +91,17 @@ _TUNED_DDPG = {"batch_size": 64, "exploration_steps": 13_000, "actor_lr": 3.7e-4
 _TUNED_SAC = {"batch_size": 32, "actor_lr": 8.5e-5, "critic_lr": 3.5e-4, "gamma": 0.995,
               "alpha_init": 0.01, "target_entropy": -2.85}  # fmt: skip
 
+# The LSTM family's, from tournaments/tune_oval_lstm.toml (LSTM4, CPU-s to a first clean lap of
+# `oval`, record tune_oval_lstm-LSTM4.json, 13 trials, 3 pruned, 10 min): trial 12 lapped first
+# (45.1 CPU-s), rounded. On seeds 0-3 at 150 CPU-s it lapped in 4 of 4 (median 66.7 CPU-s) where
+# `fast-small` lapped in none: an LSTM update costs ~10x an MLP's, so in 150 CPU-s `fast-small`
+# drives ~14k env steps and never leaves its 40k-step exploration phase.
+_TUNED_LSTM = {"batch_size": 32, "exploration_steps": 24_500, "actor_lr": 7.3e-4,
+               "critic_lr": 2.9e-4, "gamma": 0.991}  # fmt: skip
+
+_TUNED_FAMILIES = {"DDPG": _TUNED_DDPG, "PER": _TUNED_DDPG, "SAC": _TUNED_SAC,
+                   "LSTM": _TUNED_LSTM}  # fmt: skip
+
 # Demonstrations for `tuned-bc`, from 4-seed screens on `technical` (recorded line + LAC, WIN1,
 # 150 CPU-s, time_to_competence.py --demos-set, 2026-12-02): with demo rows in the batch every
 # configuration lapped in 4 of 4 seeds (`tuned` alone: 3 of 4, median 87.3 CPU-s); 10 laps gave
@@ -129,10 +140,10 @@ PRESETS: dict[str, Preset] = {
         description="'fast-small' with each family's settings from its committed study "
         "(tournaments/tune_*.toml, records in tournaments/studies/): for DDPG and PER a shorter "
         "exploration, higher learning rates, gamma 0.976 and a 12-step brake hold; for SAC its "
-        "oval study's best (alpha from 0.01); MS, TD3 and LSTM keep 'fast-small', where no "
-        "study's pick held on 4 seeds.",
+        "oval study's best (alpha from 0.01); for LSTM its oval study's best; MS and TD3 keep "
+        "'fast-small', where no study's pick held on 4 seeds.",
         overrides=_FAST_SMALL,
-        family_overrides={"DDPG": _TUNED_DDPG, "PER": _TUNED_DDPG, "SAC": _TUNED_SAC},
+        family_overrides=_TUNED_FAMILIES,
     ),
     "tuned-bc": Preset(
         name="tuned-bc",
@@ -141,7 +152,7 @@ PRESETS: dict[str, Preset] = {
         "rates the demonstrated action above the actor's own (Q-filter); on `technical` the "
         "first clean lap after a median of 50 CPU-s, 4 of 4 seeds (docs/agents.md).",
         overrides=_FAST_SMALL,
-        family_overrides={"DDPG": _TUNED_DDPG, "PER": _TUNED_DDPG, "SAC": _TUNED_SAC},
+        family_overrides=_TUNED_FAMILIES,
         demos=_TUNED_BC_DEMOS,
     ),
 }
