@@ -93,7 +93,7 @@ _TUNED_SAC = {"batch_size": 32, "actor_lr": 8.5e-5, "critic_lr": 3.5e-4, "gamma"
 
 # The LSTM family's, from tournaments/tune_oval_lstm.toml (LSTM4, CPU-s to a first clean lap of
 # `oval`, record tune_oval_lstm-LSTM4.json, 13 trials, 3 pruned, 10 min): trial 12 lapped first
-# (45.1 CPU-s), rounded. On seeds 0-3 at 150 CPU-s it lapped in 4 of 4 (median 66.7 CPU-s) where
+# (45.1 CPU-s), rounded. On seeds 0-3 at 150 CPU-s it lapped in 4 of 4 (median 53.0 CPU-s) where
 # `fast-small` lapped in none: an LSTM update costs ~10x an MLP's, so in 150 CPU-s `fast-small`
 # drives ~14k env steps and never leaves its 40k-step exploration phase.
 _TUNED_LSTM = {"batch_size": 32, "exploration_steps": 24_500, "actor_lr": 7.3e-4,
