@@ -625,6 +625,12 @@ def main() -> None:
                     help="demonstration setting (training.spec.DemoSettings) for every "
                     "entrant, on top of its preset's demos (repeatable; adds demos to a "
                     "preset without them)")
+    ap.add_argument("--env-set", action="append", default=[], metavar="KEY=VALUE",
+                    help="env setting (sim.config.EnvSettings, e.g. track_pos_weight=0) for "
+                    "every entrant and the SB3 anchor alike (repeatable)")
+    ap.add_argument("--schedule-set", action="append", default=[], metavar="KEY=VALUE",
+                    help="schedule setting (training.spec.Schedule, e.g. cars=4) for every "
+                    "entrant, on top of the benchmark's own (repeatable)")
     ap.add_argument("--no-sb3", action="store_true", help="skip the SB3 SAC anchor")
     ap.add_argument("--out", default=None, help="folder for the job folders (default: temp)")
     ap.add_argument("--plot", default=None, metavar="FILE",
@@ -636,6 +642,8 @@ def main() -> None:
     entrants = parse_entrants(args.entrants)
     overrides = parse_overrides(args.set)
     demo_overrides = parse_overrides(args.demos_set)
+    env_overrides = parse_overrides(args.env_set)
+    schedule_overrides = parse_overrides(args.schedule_set)
 
     from formula_tourney.errors import UserInputError
     from formula_tourney.training.spec import build_run_spec
@@ -649,13 +657,20 @@ def main() -> None:
     schedule = {"episodes": 10**7, "max_steps": args.max_steps,
                 "test_every_episodes": TEST_EVERY, "test_starts": TEST_STARTS,
                 "test_max_steps": test_max_steps}  # fmt: skip
+    owned = sorted(set(schedule_overrides) & set(schedule))
+    if owned:
+        raise SystemExit(f"--schedule-set: {', '.join(owned)} belong to the benchmark's tests "
+                         "and budget (--max-steps, --budget-cpu-s)")  # fmt: skip
     common = {"train_tracks": [args.track], "reference": args.reference, "lac": args.lac,
-              "schedule": schedule, "device": "cpu", "threads": 1}  # fmt: skip
+              "device": "cpu", "threads": 1}  # fmt: skip
 
-    def spec_of(variant: str, preset: str, seed: int, extra: Mapping[str, Any]) -> Any:
+    def spec_of(variant: str, preset: str, seed: int, extra: Mapping[str, Any],
+                own_schedule: Mapping[str, Any]) -> Any:
         try:
             return build_run_spec(variant=variant, preset=preset, overrides=dict(extra),
                                   seed=seed, demos=demo_overrides or None,
+                                  env_overrides=env_overrides or None,
+                                  schedule={**schedule, **own_schedule},
                                   source=f"entrant {variant}:{preset}", **common)  # fmt: skip
         except UserInputError as err:
             raise SystemExit(f"error: {err}") from None
@@ -673,13 +688,13 @@ def main() -> None:
     for seed in seeds:
         for variant, preset in entrants:
             label = f"{variant}:{preset}"
-            spec = spec_of(variant, preset, seed, overrides)
+            spec = spec_of(variant, preset, seed, overrides, schedule_overrides)
             specs[label] = spec
             tasks.append({**base, "kind": "ours", "label": label, "seed": seed,
                           "spec": spec.to_json(),
                           "job_dir": str(out_root / f"{variant}-{preset}" / f"seed-{seed}")})
-        if use_sb3:  # the env of a plain spec with the same track, line, LAC and schedule
-            spec = spec_of("WIN1", "paper", seed, {})
+        if use_sb3:  # the env of a plain spec with the same track, line, LAC and tests (one car)
+            spec = spec_of("WIN1", "paper", seed, {}, {})
             tasks.append({**base, "kind": "sb3", "label": SB3_LABEL, "seed": seed,
                           "spec": spec.to_json(), "job_dir": str(out_root / "sb3-sac" /
                                                                  f"seed-{seed}")})  # fmt: skip
@@ -723,7 +738,8 @@ def main() -> None:
         "max_steps": args.max_steps, "test_every_episodes": TEST_EVERY,
         "test_starts": TEST_STARTS, "test_max_steps": test_max_steps,
         "clean_start_min": CLEAN_STARTS, "overrides": overrides,
-        "demo_overrides": demo_overrides, "bots": bots,
+        "demo_overrides": demo_overrides, "env_overrides": env_overrides,
+        "schedule_overrides": schedule_overrides, "bots": bots,
         "goals": goals, "entrants": results, "sb3": sb3, "out": str(out_root),
     }  # fmt: skip
     print(render(result), file=sys.stderr)

@@ -142,6 +142,30 @@ def test_reward_is_the_papers_and_off_track_ends_with_minus_one():
     assert np.all(obs[K.OBS_TRACK:K.OBS_TRACK + 19] == -1.0)
 
 
+
+def test_track_pos_weight_scales_only_the_lateral_term_and_one_is_the_papers():
+    """Off the reference line (4 m left of the centre), weight 0 drops the -Vx |trackPos| term
+    and weight 0.5 halves it; weight 1 gives the paper's reward bit for bit."""
+    rewards = {}
+    for weight in (None, 1.0, 0.5, 0.0):
+        config = {"track": TRACK} | ({} if weight is None else {"track_pos_weight": weight})
+        env = FormulaRacingEnv(config=config)
+        env.reset(options={"start_s_m": 100.0, "start_speed_mps": 30.0})
+        st = env._b.state[0]  # the bottom straight runs along +x: left of it is +y
+        st[K.ST_Y] += 4.0
+        st[K.ST_LAT] += 4.0
+        obs, r, term, _, _ = env.step(np.array([0.0, 0.5, 0.0], np.float32))
+        assert not term
+        rewards[weight] = r
+    theta = obs[K.OBS_ANGLE] * math.pi
+    vx = obs[K.OBS_VX] * K.SPEED_SCALE_MPS
+    track_pos = abs(obs[K.OBS_TRACKPOS])
+    assert track_pos > 0.5  # the term is large here: a car 4 m off a 12 m track's centre
+    assert rewards[1.0] == rewards[None]
+    assert rewards[0.0] == pytest.approx(vx * (math.cos(theta) - abs(math.sin(theta))), rel=1e-5)
+    assert rewards[0.5] == pytest.approx(rewards[0.0] - 0.5 * vx * track_pos, rel=1e-5)
+    assert rewards[0.0] - rewards[1.0] == pytest.approx(vx * track_pos, rel=1e-5)
+
 def test_backwards_slow_and_max_steps_ends():
     env = FormulaRacingEnv(config={"track": TRACK})
     env.reset(options={"start_s_m": 100.0})

@@ -289,6 +289,24 @@ def test_run_spec_says_what_goes_beyond_the_paper(ring_tracks) -> None:
     assert spec.beyond_paper() == ["SAC", "demos (follower on centre)", "4 cars"]
 
 
+def test_track_pos_weight_is_labelled_and_left_out_of_config_at_the_papers_one(
+        ring_tracks) -> None:
+    """A reward beyond the paper's says so in every table; at the paper's weight the spec's JSON
+    (config.json, the digest) is what it was before the setting existed."""
+    paper = build_run_spec(variant="WIN1", train_tracks=["ringA"])
+    same = build_run_spec(variant="WIN1", train_tracks=["ringA"],
+                          env_overrides={"track_pos_weight": 1.0})
+    assert "track_pos_weight" not in paper.to_json()["env"] and same.digest() == paper.digest()
+    free = build_run_spec(variant="WIN1", train_tracks=["ringA"],
+                          env_overrides={"track_pos_weight": 0.25})
+    assert free.beyond_paper() == ["reward trackPos weight 0.25"]
+    assert free.to_json()["env"]["track_pos_weight"] == 0.25 and free.digest() != paper.digest()
+    assert RunSpec.from_json(free.to_json(), "round trip") == free
+    with pytest.raises(UserInputError, match="track_pos_weight"):
+        build_run_spec(variant="WIN1", train_tracks=["ringA"],
+                       env_overrides={"track_pos_weight": -1.0})
+
+
 def test_paper_preset_is_the_registered_variant_and_others_are_labelled(ring_tracks) -> None:
     """The paper stays reproducible: its preset changes nothing of the ten variants."""
     from formula_tourney.agents.variants import VARIANTS

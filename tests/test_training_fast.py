@@ -151,6 +151,33 @@ def test_a_crash_penalty_is_written_and_read_back_and_refused_when_negative() ->
         build_run_spec(variant="WIN1", overrides={"crash_penalty": -1.0}, train_tracks=["oval"])
 
 
+@pytest.mark.parametrize("floor", [0.0, 0.3])
+def test_epsilon_floor_keeps_the_loop_exploring_after_the_anneal(
+    tmp_path, ring_tracks, monkeypatch, floor: float
+) -> None:
+    """The loop hands the noise an epsilon that anneals over ``exploration_steps`` and then
+    stays at ``epsilon_floor`` (the paper's 0: the actor's own actions); a floor is written to
+    config.json, the paper's 0 is not."""
+    seen: list[float] = []
+    original = loop.BrakeExplorationNoise.__call__
+
+    def record(self, action, epsilon):  # noqa: ANN001, ANN202 - the noise's own signature
+        seen.append(epsilon)
+        return original(self, action, epsilon)
+
+    monkeypatch.setattr(loop.BrakeExplorationNoise, "__call__", record)
+    spec = build_run_spec(
+        variant="WIN1", overrides={**SMALL, "exploration_steps": 50, "epsilon_floor": floor},
+        train_tracks=["ringA"], device="cpu", seed=1,
+        schedule={"episodes": 500, "env_steps": 120, "max_steps": 40, "test_every_episodes": 1000,
+                  "test_starts": 1, "test_max_steps": 10},
+    )  # fmt: skip
+    loop.train(spec, tmp_path / "job")
+    assert len(seen) >= 120 and seen[0] == 1.0 and seen[25] == pytest.approx(0.5)
+    assert set(seen[50:]) == {floor}
+    assert ("epsilon_floor" in spec.to_json()["agent"]) == (floor > 0)
+
+
 def test_cars_split_over_train_tracks_and_need_one_each(ring_tracks) -> None:
     assert split_cars(5, ["a", "b", "a"]) == [("a", 3), ("b", 2)]
     with pytest.raises(UserInputError, match="at least the number of train tracks"):

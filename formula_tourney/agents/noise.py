@@ -17,9 +17,11 @@ ACTION_HIGH = np.array([1.0, 1.0, 1.0], dtype=np.float32)
 STEER, THROTTLE, BRAKE = 0, 1, 2
 
 
-def linear_epsilon(step: int, exploration_steps: int) -> float:
-    """Epsilon annealed linearly from 1 at step 0 to 0 at ``exploration_steps`` (then 0)."""
-    return float(max(0.0, 1.0 - step / max(1, exploration_steps)))
+def linear_epsilon(step: int, exploration_steps: int, floor: float = 0.0) -> float:
+    """Epsilon annealed linearly from 1 at step 0 to ``floor`` at ``exploration_steps`` (then
+    ``floor``); the paper's floor is 0. The line is clipped, not rescaled, so a floor leaves the
+    paper's epsilon untouched while it is above the floor."""
+    return float(max(floor, 1.0 - step / max(1, exploration_steps)))
 
 
 class NoiseEvent(NamedTuple):

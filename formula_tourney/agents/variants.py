@@ -190,6 +190,14 @@ class AgentConfig(BaseModel):
         ge=1,
         description="Environment steps over which epsilon anneals linearly from 1 to 0.",
     )
+    epsilon_floor: float = Field(
+        0.0,
+        ge=0.0,
+        le=1.0,
+        description="Beyond the paper: epsilon never anneals below this, so OU and brake "
+        "exploration go on for the whole run (as TD3's constant noise does) and the critic keeps "
+        "seeing actions beside the actor's; 0: the paper's anneal to pure actor actions.",
+    )
     noise_prob: float = Field(
         0.1,
         ge=0.0,

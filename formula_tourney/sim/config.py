@@ -124,6 +124,14 @@ class EnvSettings(BaseModel):
     damage_weight: Real = Field(
         0.01, ge=0.0, description="Reward term: minus this times the damage taken in the step."
     )
+    track_pos_weight: Real = Field(
+        1.0,
+        ge=0.0,
+        le=10.0,
+        description="Weight w of the reward's -Vx w |trackPos| term. The paper's 1 pays a car "
+        "for staying on the reference line, which caps its lap at that line's limit; below 1 "
+        "(beyond the paper) the car may take its own line across the track.",
+    )
     start_speed_mps: Real = Field(
         0.0, ge=0.0, le=100.0, description="Speed at reset along the reference line."
     )

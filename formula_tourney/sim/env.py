@@ -103,6 +103,7 @@ class _Batch:
         c[K.C_SLOW_PATIENCE] = self.slow_patience
         c[K.C_DMG_W] = cfg.damage_weight
         c[K.C_SLOW_PEN] = cfg.slow_penalty
+        c[K.C_TRACKPOS_W] = cfg.track_pos_weight
         c[K.C_LAC] = 1.0 if self.lac else 0.0
         c[K.C_LENGTH] = self.track.length_m
         self.geom = track_geometry(self.track, self.reference, cfg.grip_scale,
@@ -360,8 +361,9 @@ class FormulaRacingEnv(gymnasium.Env):
     `formula_tourney.sim.sensors.observation_names(lac)`:
     {_DOC_TABLE}
     ## Rewards
-    Per step `Vx * (cos(theta) - |sin(theta)| - |trackPos|)` with `Vx` in m/s and `theta` the
-    angle to the reference line, minus `damage_weight` times the damage added in the step.
+    Per step `Vx * (cos(theta) - |sin(theta)| - w |trackPos|)` with `Vx` in m/s, `theta` the
+    angle to the reference line and `w` = `track_pos_weight` (the paper's 1), minus
+    `damage_weight` times the damage added in the step.
     A step that ends the episode off track or backwards gives -1; a slow end `-slow_penalty`.
 
     ## Starting State

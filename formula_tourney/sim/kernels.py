@@ -185,7 +185,8 @@ C_LENGTH = 12  # track length, m
 C_ELEV = 13  # 1 when the track has heights or banking (the ``elev`` block is read)
 C_DRY_M = 14  # drying track: distance (m) over which the grip dries; 0 = no drying
 C_DRY_DELTA0 = 15  # drying track: ``ST_GRIP_DELTA`` at distance 0 (rises linearly to 0)
-N_CFG = 16
+C_TRACKPOS_W = 16  # weight of the reward's ``-Vx |trackPos|`` term (the paper: 1)
+N_CFG = 17
 
 # --- per-step outputs --------------------------------------------------------------------------
 O_REWARD = 0
@@ -1058,7 +1059,8 @@ def score_step(st: np.ndarray, o: np.ndarray, obs_row: np.ndarray, dist0: float,
     length = cfg[C_LENGTH]
     vx = st[ST_VX]
     track_pos = obs_row[OBS_TRACKPOS]
-    reward = vx * (math.cos(angle) - abs(math.sin(angle)) - abs(track_pos))
+    lateral = cfg[C_TRACKPOS_W] * abs(track_pos)
+    reward = vx * (math.cos(angle) - abs(math.sin(angle)) - lateral)
     reward -= cfg[C_DMG_W] * o[O_DMG_INC]
     progress_mps = (st[ST_DIST] - dist0) / cfg[C_DT]
     if progress_mps < cfg[C_SLOW_MPS]:

@@ -255,7 +255,7 @@ def train(
     while not last and not stopped_early:
         for car in collector.started:
             noises[car].reset()
-        epsilon = linear_epsilon(env_steps, agent_cfg.exploration_steps)
+        epsilon = linear_epsilon(env_steps, agent_cfg.exploration_steps, agent_cfg.epsilon_floor)
         if samples_its_policy:  # SAC explores by sampling its own policy
             actions = [agent.explore(window) for window in collector.windows]
         elif cars == 1:

@@ -13,10 +13,10 @@ the env's settings (``sim.config.EnvSettings``), the reference line and LAC, the
 
 Settings added after results layout 2 (``schedule.cars``, ``schedule.env_steps``,
 ``schedule.test_grip_scales``, ``schedule.traffic_bots``, ``demos``, the agent's
-``crash_penalty``, the env's ``grip_scale_range`` and ``grip_drying``) are left out of
-:meth:`RunSpec.to_json` while at their defaults: a default run's ``config.json``, checkpoints and
-:meth:`RunSpec.digest` are byte for byte what they were before those settings existed, so a
-resumed tournament still recognises its finished jobs.
+``crash_penalty`` and ``epsilon_floor``, the env's ``grip_scale_range``, ``grip_drying`` and
+``track_pos_weight``) are left out of :meth:`RunSpec.to_json` while at their defaults: a default
+run's ``config.json``, checkpoints and :meth:`RunSpec.digest` are byte for byte what they were
+before those settings existed, so a resumed tournament still recognises its finished jobs.
 """
 
 from __future__ import annotations
@@ -260,6 +260,8 @@ class RunSpec(_Frozen):
             out.append(self.agent.family)
         if self.demos is not None:
             out.append(f"demos ({DEMO_BOT} on {self.demos.line})")
+        if self.env.track_pos_weight != 1.0:
+            out.append(f"reward trackPos weight {self.env.track_pos_weight:g}")
         if self.schedule.cars > 1:
             out.append(f"{self.schedule.cars} cars")
         if self.schedule.traffic_bots:
@@ -276,8 +278,9 @@ class RunSpec(_Frozen):
             for key, default in (("bc_weight", 0.0), ("bc_q_filter", True)):
                 if data["demos"][key] == default:
                     del data["demos"][key]
-        if data["agent"]["crash_penalty"] == 0.0:  # an agent key newer than layout 2
-            del data["agent"]["crash_penalty"]
+        for key in ("crash_penalty", "epsilon_floor"):  # agent keys newer than layout 2
+            if data["agent"][key] == 0.0:
+                del data["agent"][key]
         if data["schedule"]["cars"] == 1:
             del data["schedule"]["cars"]
         if data["schedule"]["env_steps"] is None:
@@ -289,6 +292,8 @@ class RunSpec(_Frozen):
         for key in ("grip_scale_range", "grip_drying"):  # env keys newer than layout 2
             if data["env"][key] is None:
                 del data["env"][key]
+        if data["env"]["track_pos_weight"] == 1.0:  # the paper's reward: an env key newer still
+            del data["env"]["track_pos_weight"]
         if data["preset"] == "paper":
             del data["preset"]
         return data
