@@ -126,7 +126,6 @@ def test_epsilon_floor_clips_the_papers_line_from_below() -> None:
     steps = (0, 25, 70, 80, 100, 500)
     assert [linear_epsilon(s, 100, 0.25) for s in steps] == pytest.approx(
         [1.0, 0.75, 0.3, 0.25, 0.25, 0.25], abs=1e-12)
-    assert [linear_epsilon(s, 100, 0.0) for s in steps] == [linear_epsilon(s, 100) for s in steps]
 
 
 @pytest.mark.parametrize(

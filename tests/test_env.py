@@ -142,7 +142,6 @@ def test_reward_is_the_papers_and_off_track_ends_with_minus_one():
     assert np.all(obs[K.OBS_TRACK:K.OBS_TRACK + 19] == -1.0)
 
 
-
 def test_track_pos_weight_scales_only_the_lateral_term_and_one_is_the_papers():
     """Off the reference line (4 m left of the centre), weight 0 drops the -Vx |trackPos| term
     and weight 0.5 halves it; weight 1 gives the paper's reward bit for bit."""
@@ -165,6 +164,7 @@ def test_track_pos_weight_scales_only_the_lateral_term_and_one_is_the_papers():
     assert rewards[0.0] == pytest.approx(vx * (math.cos(theta) - abs(math.sin(theta))), rel=1e-5)
     assert rewards[0.5] == pytest.approx(rewards[0.0] - 0.5 * vx * track_pos, rel=1e-5)
     assert rewards[0.0] - rewards[1.0] == pytest.approx(vx * track_pos, rel=1e-5)
+
 
 def test_backwards_slow_and_max_steps_ends():
     env = FormulaRacingEnv(config={"track": TRACK})

@@ -299,12 +299,26 @@ def test_track_pos_weight_is_labelled_and_left_out_of_config_at_the_papers_one(
     assert "track_pos_weight" not in paper.to_json()["env"] and same.digest() == paper.digest()
     free = build_run_spec(variant="WIN1", train_tracks=["ringA"],
                           env_overrides={"track_pos_weight": 0.25})
-    assert free.beyond_paper() == ["reward trackPos weight 0.25"]
+    assert free.beyond_paper() == ["track_pos_weight 0.25"]
     assert free.to_json()["env"]["track_pos_weight"] == 0.25 and free.digest() != paper.digest()
     assert RunSpec.from_json(free.to_json(), "round trip") == free
     with pytest.raises(UserInputError, match="track_pos_weight"):
         build_run_spec(variant="WIN1", train_tracks=["ringA"],
                        env_overrides={"track_pos_weight": -1.0})
+
+
+def test_a_beyond_paper_setting_is_labelled_where_it_differs_from_its_preset(ring_tracks) -> None:
+    """`tuned`'s own brake hold is named by "preset tuned"; a user's change on top of a preset,
+    or on the paper's variant, is named by itself."""
+    tuned = build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="tuned")
+    assert tuned.agent.brake_explore_hold_steps == 12 and tuned.beyond_paper() == ["preset tuned"]
+    screened = build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="tuned-bc",
+                              overrides={"crash_penalty": 1000.0, "epsilon_floor": 0.1})
+    assert screened.beyond_paper() == [
+        "preset tuned-bc", "demos (follower on mincurv)", "crash_penalty 1000", "epsilon_floor 0.1"]
+    held = build_run_spec(variant="PER1M", train_tracks=["ringA"],
+                          overrides={"brake_explore_hold_steps": 15})
+    assert held.beyond_paper() == ["brake_explore_hold_steps 15"]
 
 
 def test_paper_preset_is_the_registered_variant_and_others_are_labelled(ring_tracks) -> None:

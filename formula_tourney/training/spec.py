@@ -252,7 +252,8 @@ class RunSpec(_Frozen):
 
     def beyond_paper(self) -> list[str]:
         """What this run adds to the paper's setup, for the "beyond paper" label of every table:
-        a family beyond the paper's, demonstrations, more than one car per learner."""
+        a preset, a family beyond the paper's, demonstrations, a beyond-paper setting off what
+        its preset gives, more than one car per learner, traffic."""
         out = []
         if self.preset != "paper":
             out.append(f"preset {self.preset}")
@@ -260,40 +261,37 @@ class RunSpec(_Frozen):
             out.append(self.agent.family)
         if self.demos is not None:
             out.append(f"demos ({DEMO_BOT} on {self.demos.line})")
-        if self.env.track_pos_weight != 1.0:
-            out.append(f"reward trackPos weight {self.env.track_pos_weight:g}")
+        out.extend(self._beyond_paper_settings())
         if self.schedule.cars > 1:
             out.append(f"{self.schedule.cars} cars")
         if self.schedule.traffic_bots:
             out.append(f"traffic ({self.schedule.traffic_bots} {DEMO_BOT} bots)")
         return out
 
+    def _beyond_paper_settings(self) -> list[str]:
+        """``KEY VALUE`` for each of :data:`BEYOND_PAPER_SETTINGS` that differs from what the
+        run's preset gives (its value, else the paper's default): a preset's own choices are
+        named by "preset NAME", a user's change on top of it is named here."""
+        preset_agent = get_preset(self.preset).agent_overrides(
+            self.agent.family, named_settings(self.variant))
+        base = {"agent": {**_DEFAULTS["agent"], **preset_agent}, "env": _DEFAULTS["env"]}
+        sections = {"agent": self.agent, "env": self.env}
+        return [f"{key} {getattr(sections[section], key):g}"
+                for section, keys in BEYOND_PAPER_SETTINGS.items() for key in keys
+                if getattr(sections[section], key) != base[section][key]]  # fmt: skip
+
     def to_json(self) -> dict[str, Any]:
-        """Plain JSON data (what config.json, checkpoints and worker messages carry); settings
-        newer than layout 2 are left out at their defaults (module docstring)."""
+        """Plain JSON data (what config.json, checkpoints and worker messages carry); the
+        settings of :data:`NEWER_THAN_LAYOUT_2` are left out at their defaults (module
+        docstring)."""
         data = self.model_dump(mode="json")
         if data["demos"] is None:
             del data["demos"]
-        else:  # cloning in the actor's loss is newer than demos: off, it leaves them out
-            for key, default in (("bc_weight", 0.0), ("bc_q_filter", True)):
-                if data["demos"][key] == default:
-                    del data["demos"][key]
-        for key in ("crash_penalty", "epsilon_floor"):  # agent keys newer than layout 2
-            if data["agent"][key] == 0.0:
-                del data["agent"][key]
-        if data["schedule"]["cars"] == 1:
-            del data["schedule"]["cars"]
-        if data["schedule"]["env_steps"] is None:
-            del data["schedule"]["env_steps"]
-        if not data["schedule"]["traffic_bots"]:
-            del data["schedule"]["traffic_bots"]
-        if not data["schedule"]["test_grip_scales"]:
-            del data["schedule"]["test_grip_scales"]
-        for key in ("grip_scale_range", "grip_drying"):  # env keys newer than layout 2
-            if data["env"][key] is None:
-                del data["env"][key]
-        if data["env"]["track_pos_weight"] == 1.0:  # the paper's reward: an env key newer still
-            del data["env"]["track_pos_weight"]
+        for section, keys in NEWER_THAN_LAYOUT_2.items():
+            if section in data:
+                for key in keys:
+                    if data[section][key] == _DEFAULTS[section][key]:
+                        del data[section][key]
         if data["preset"] == "paper":
             del data["preset"]
         return data
@@ -321,6 +319,28 @@ def _problems(err: ValidationError) -> str:
     return "; ".join(
         f"{'.'.join(str(p) for p in e['loc']) or 'value'}: {e['msg']}" for e in err.errors()
     )
+
+
+NEWER_THAN_LAYOUT_2: dict[str, tuple[str, ...]] = {
+    "agent": ("crash_penalty", "epsilon_floor"),
+    "env": ("grip_scale_range", "grip_drying", "track_pos_weight"),
+    "schedule": ("cars", "env_steps", "traffic_bots", "test_grip_scales"),
+    "demos": ("bc_weight", "bc_q_filter"),  # newer than the demonstrations themselves
+}
+"""The settings :meth:`RunSpec.to_json` leaves out while at their defaults, by spec section."""
+
+BEYOND_PAPER_SETTINGS: dict[str, tuple[str, ...]] = {
+    "agent": ("crash_penalty", "epsilon_floor", "brake_explore_hold_steps"),
+    "env": ("track_pos_weight",),
+}
+"""Settings of mechanisms the paper does not have: off their preset's value, a run says so."""
+
+_DEFAULTS: dict[str, dict[str, Any]] = {
+    section: model().model_dump(mode="json")
+    for section, model in (("agent", AgentConfig), ("env", EnvSettings), ("schedule", Schedule),
+                           ("demos", DemoSettings))
+}  # fmt: skip
+"""Each section's defaults as JSON, read from its model: the one owner of every default."""
 
 
 def build_run_spec(
