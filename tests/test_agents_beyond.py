@@ -339,7 +339,7 @@ def test_checkpoint_round_trip_carries_networks_alpha_and_noise(name: str, tmp_p
 NEW_FIELDS = {
     "algorithm": "ddpg", "policy_noise": 0.2, "noise_clip": 0.5, "policy_delay": 2,
     "alpha_init": 1.0, "alpha_lr": 3e-4, "target_entropy": None, "brake_explore_hold_steps": 1,
-    "crash_penalty": 0.0, "epsilon_floor": 0.0,
+    "crash_penalty": 0.0, "epsilon_floor": 0.0, "eval_ema_updates": 0,
 }  # fmt: skip
 # AgentConfig().model_dump(mode="json") and each paper variant's changes from it, before
 # TD3 and SAC existed (issue 11, item 3)

@@ -227,7 +227,13 @@ class DDPGAgent:
         if cfg.algorithm != "sac":
             self.actor_target = copy.deepcopy(self.actor).requires_grad_(False)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
+        # what tests drive (cfg.eval_ema_updates): an average of the online actor's weights, which
+        # the gradient steps never touch
+        self.actor_eval: nn.Module | None = None
+        if cfg.eval_ema_updates > 0:
+            self.actor_eval = copy.deepcopy(self.actor).requires_grad_(False)
         self._online_flat = _flat_views([self.actor, self.critic])
+        self._eval_flat = None if self.actor_eval is None else _flat_views([self.actor_eval])
         targets = [m for m in (self.actor_target, self.critic_target) if m is not None]
         self._target_flat = _flat_views(targets)
         self._actor_params = list(self.actor.parameters())
@@ -239,6 +245,7 @@ class DDPGAgent:
         for p, g in zip(online, _split_like(self._grad_flat, online), strict=True):
             p.grad = g
         n_actor = sum(p.numel() for p in self._actor_params)
+        self._n_actor = n_actor
         self.actor_opt = FusedAdam(
             self._actor_params, self._online_flat[:n_actor], self._grad_flat[:n_actor],
             lr=cfg.actor_lr,
@@ -286,6 +293,9 @@ class DDPGAgent:
                 self.actor, self.critic, self.actor_target, self.critic_target
             )
         self._greedy = GreedyAct(self.actor) if isinstance(self.actor, Actor) else None
+        self._greedy_eval = (
+            GreedyAct(self.actor_eval) if isinstance(self.actor_eval, Actor) else None
+        )
         self.updates = 0
         self.last_priorities: np.ndarray | None = None
 
@@ -308,6 +318,16 @@ class DDPGAgent:
             return self._greedy(obs_window)
         with torch.no_grad():
             return self.actor(self._window_tensor(obs_window))[0].cpu().numpy()
+
+    def act_eval(self, obs_window: np.ndarray) -> np.ndarray:
+        """The greedy action of a test or a race: :meth:`act` of the averaged actor when
+        ``cfg.eval_ema_updates`` keeps one, of the online actor otherwise (the paper's)."""
+        if self.actor_eval is None:
+            return self.act(obs_window)
+        if self._greedy_eval is not None:
+            return self._greedy_eval(obs_window)
+        with torch.no_grad():
+            return self.actor_eval(self._window_tensor(obs_window))[0].cpu().numpy()
 
     def explore(self, obs_window: np.ndarray) -> np.ndarray:
         """The training loop's action for one window: SAC's sample ``a ~ pi(.|s)``; for DDPG and
@@ -388,8 +408,7 @@ class DDPGAgent:
         result = mlp.gradients(**t, action_grad=cfg.prioritized, bc=bc)
         self.critic_opt.step()
         self.actor_opt.step()
-        with torch.no_grad():  # (4)
-            self._target_flat.lerp_(self._target_source, cfg.tau)
+        self._soft_updates()
         if cfg.prioritized and per_buffer is not None:
             self.last_priorities = per_buffer.update_priorities(
                 batch.indices, result.td.cpu().numpy(), result.grad_a.cpu().numpy()
@@ -482,9 +501,7 @@ class DDPGAgent:
             self.actor_opt.step()
             if self.alpha_opt is not None:
                 self.alpha_opt.step()
-            # (4) soft target update over all weights at once: theta' += tau (theta - theta')
-            with torch.no_grad():
-                self._target_flat.lerp_(self._target_source, cfg.tau)
+            self._soft_updates()
 
         if cfg.prioritized and per_buffer is not None:
             self.last_priorities = per_buffer.update_priorities(
@@ -496,13 +513,32 @@ class DDPGAgent:
             q_mean=float(q.detach().mean()), td_abs_mean=float(td.detach().abs().mean()),
         )  # fmt: skip
 
+    @torch.no_grad()
+    def _soft_updates(self) -> None:
+        """After an actor step: (4) the soft target update over all weights at once,
+        theta' += tau (theta - theta'), and the tests' average, theta_eval += (theta -
+        theta_eval) / eval_ema_updates."""
+        self._target_flat.lerp_(self._target_source, self.cfg.tau)
+        if self._eval_flat is not None:
+            rate = 1.0 / self.cfg.eval_ema_updates
+            self._eval_flat.lerp_(self._online_flat[: self._n_actor], rate)
+
+    @torch.no_grad()
+    def sync_actor_copies(self) -> None:
+        """Copy the online actor into the target actor and the tests' average: a warm start
+        (behaviour cloning) moves the actor without updates, and copies that kept the random
+        initialisation would drag it back for thousands of updates."""
+        for copy_ in (self.actor_target, self.actor_eval):
+            if copy_ is not None:
+                copy_.load_state_dict(self.actor.state_dict())  # into the flat views
+
     # --- persistence ----------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
         """Everything to resume or evaluate; only tensors and plain types (weights_only loads).
 
         Keys beyond :data:`CHECKPOINT_KEYS` are the algorithm's (:data:`ALGORITHM_CHECKPOINT_KEYS`):
         the target actor (DDPG, TD3), the noise generator's state (TD3, SAC), log alpha and its
-        Adam (SAC).
+        Adam (SAC); and ``actor_eval``, the tests' averaged actor, when ``cfg.eval_ema_updates``.
         """
         state: dict[str, Any] = {
             "format": 1,
@@ -515,6 +551,8 @@ class DDPGAgent:
         }
         if self.actor_target is not None:
             state["actor_target"] = self.actor_target.state_dict()
+        if self.actor_eval is not None:
+            state["actor_eval"] = self.actor_eval.state_dict()
         state["critic_target"] = self.critic_target.state_dict()
         state["actor_opt"] = self.actor_opt.state_dict()
         state["critic_opt"] = self.critic_opt.state_dict()
@@ -531,6 +569,8 @@ class DDPGAgent:
         self.critic.load_state_dict(state["critic"])
         if self.actor_target is not None:
             self.actor_target.load_state_dict(state["actor_target"])
+        if self.actor_eval is not None:
+            self.actor_eval.load_state_dict(state["actor_eval"])
         self.critic_target.load_state_dict(state["critic_target"])
         self.actor_opt.load_state_dict(state["actor_opt"])
         self.critic_opt.load_state_dict(state["critic_opt"])
@@ -596,7 +636,10 @@ def load_checkpoint(path: str | Path, device: str = "cpu") -> tuple[DDPGAgent, d
         raise UserInputError(f"checkpoint {path} has a bad agent config: {first}") from None
     if obs_dim < 1 or action_dim < 1:
         raise UserInputError(f"checkpoint {path} has bad sizes {obs_dim} x {action_dim}")
-    missing = [k for k in ALGORITHM_CHECKPOINT_KEYS[cfg.algorithm] if k not in state]
+    wanted = ALGORITHM_CHECKPOINT_KEYS[cfg.algorithm]
+    if cfg.eval_ema_updates:
+        wanted += ("actor_eval",)
+    missing = [k for k in wanted if k not in state]
     if missing:
         raise UserInputError(
             f"checkpoint {path} is incomplete for {cfg.algorithm}: no {', '.join(missing)}"

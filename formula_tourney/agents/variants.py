@@ -198,6 +198,15 @@ class AgentConfig(BaseModel):
         "exploration go on for the whole run (as TD3's constant noise does) and the critic keeps "
         "seeing actions beside the actor's; 0: the paper's anneal to pure actor actions.",
     )
+    eval_ema_updates: int = Field(
+        0,
+        ge=0,
+        description="Beyond the paper: tests (and every drive from a checkpoint) use an "
+        "exponential moving average of the actor's weights over about this many updates "
+        "(decay 1 - 1/N), the online actor going on learning as before; 0: tests drive the "
+        "online actor, as the paper does. Between two tests the online actor moves through "
+        "thousands of updates and a snapshot lands wherever the last few put it.",
+    )
     noise_prob: float = Field(
         0.1,
         ge=0.0,

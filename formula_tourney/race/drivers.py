@@ -54,7 +54,7 @@ class ModelDriver:
         assert self._window is not None, "reset() first"
         if self._stack is None:
             self._stack = self._window.push(self._input(obs, opp))
-        action = np.asarray(self.agent.act(self._stack), dtype=np.float64)
+        action = np.asarray(self.agent.act_eval(self._stack), dtype=np.float64)
         self._stack = None  # the next act pushes the observation that this action leads to
         return action
 

@@ -200,7 +200,7 @@ def behaviour_clone(
         mse(batch.observations, batch.actions).backward(inputs=params)
         optimizer.step()
     optimizer.zero_grad(set_to_none=False)
-    agent.actor_target.load_state_dict(actor.state_dict())  # copies into the flat target views
+    agent.sync_actor_copies()
     with torch.no_grad():
         after = float(mse(everything.observations, everything.actions))
     return before, after

@@ -90,7 +90,7 @@ def run_test_episode(
     total_reward = 0.0
     steps = 0
     while True:
-        action = agent.act(stack)
+        action = agent.act_eval(stack)
         obs, reward, terminated, truncated, info = env.step(action)
         total_reward += float(reward)
         steps += 1

@@ -13,10 +13,11 @@ the env's settings (``sim.config.EnvSettings``), the reference line and LAC, the
 
 Settings added after results layout 2 (``schedule.cars``, ``schedule.env_steps``,
 ``schedule.test_grip_scales``, ``schedule.traffic_bots``, ``demos``, the agent's
-``crash_penalty`` and ``epsilon_floor``, the env's ``grip_scale_range``, ``grip_drying`` and
-``track_pos_weight``) are left out of :meth:`RunSpec.to_json` while at their defaults: a default
-run's ``config.json``, checkpoints and :meth:`RunSpec.digest` are byte for byte what they were
-before those settings existed, so a resumed tournament still recognises its finished jobs.
+``crash_penalty``, ``epsilon_floor`` and ``eval_ema_updates``, the env's ``grip_scale_range``,
+``grip_drying`` and ``track_pos_weight``) are left out of :meth:`RunSpec.to_json` while at their
+defaults: a default run's ``config.json``, checkpoints and :meth:`RunSpec.digest` are byte for
+byte what they were before those settings existed, so a resumed tournament still recognises its
+finished jobs.
 """
 
 from __future__ import annotations
@@ -322,7 +323,7 @@ def _problems(err: ValidationError) -> str:
 
 
 NEWER_THAN_LAYOUT_2: dict[str, tuple[str, ...]] = {
-    "agent": ("crash_penalty", "epsilon_floor"),
+    "agent": ("crash_penalty", "epsilon_floor", "eval_ema_updates"),
     "env": ("grip_scale_range", "grip_drying", "track_pos_weight"),
     "schedule": ("cars", "env_steps", "traffic_bots", "test_grip_scales"),
     "demos": ("bc_weight", "bc_q_filter"),  # newer than the demonstrations themselves
@@ -330,7 +331,7 @@ NEWER_THAN_LAYOUT_2: dict[str, tuple[str, ...]] = {
 """The settings :meth:`RunSpec.to_json` leaves out while at their defaults, by spec section."""
 
 BEYOND_PAPER_SETTINGS: dict[str, tuple[str, ...]] = {
-    "agent": ("crash_penalty", "epsilon_floor", "brake_explore_hold_steps"),
+    "agent": ("crash_penalty", "epsilon_floor", "eval_ema_updates", "brake_explore_hold_steps"),
     "env": ("track_pos_weight",),
 }
 """Settings of mechanisms the paper does not have: off their preset's value, a run says so."""
