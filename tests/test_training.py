@@ -409,3 +409,27 @@ def test_tuned_bc_is_tuned_with_cloned_demonstrations(ring_tracks) -> None:
         ]  # SAC is labelled beyond the paper under every preset
         assert bc.to_json()["demos"]["bc_weight"] == 0.2
         assert RunSpec.from_json(bc.to_json(), "round trip") == bc
+
+
+def test_tuned_bc_ema_changes_only_the_ddpg_family(ring_tracks) -> None:
+    """`tuned-bc-ema` is `tuned-bc` plus, for the WIN variants alone (the family it was measured
+    on), actor_lr 1e-4, a crash penalty of 1 000 and tests on a 3 000-update average of the
+    actor; every other family trains exactly as under `tuned-bc`. The run is labelled by the
+    preset, not by each setting, and a user's change on top of it is still named."""
+    for variant in ("WIN1", "WIN8"):
+        bc = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned-bc")
+        ema = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned-bc-ema")
+        changed = {k: v for k, v in ema.agent.model_dump().items()
+                   if v != getattr(bc.agent, k)}  # fmt: skip
+        assert changed == {"actor_lr": 1e-4, "crash_penalty": 1000.0, "eval_ema_updates": 3000}
+        assert ema.demos == bc.demos
+        assert ema.beyond_paper() == ["preset tuned-bc-ema", "demos (follower on mincurv)"]
+        assert RunSpec.from_json(ema.to_json(), "round trip") == ema
+    for variant in ("PER1M", "MS3", "LSTM4", "TD3", "SAC"):
+        bc = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned-bc")
+        ema = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned-bc-ema")
+        assert ema.agent == bc.agent, variant
+    user = build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="tuned-bc-ema",
+                          overrides={"eval_ema_updates": 1000})  # fmt: skip
+    assert user.agent.eval_ema_updates == 1000
+    assert "eval_ema_updates 1000" in user.beyond_paper()
