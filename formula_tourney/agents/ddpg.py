@@ -245,9 +245,9 @@ class DDPGAgent:
         for p, g in zip(online, _split_like(self._grad_flat, online), strict=True):
             p.grad = g
         n_actor = sum(p.numel() for p in self._actor_params)
-        self._n_actor = n_actor
+        self._actor_flat = self._online_flat[:n_actor]  # what the tests' average follows
         self.actor_opt = FusedAdam(
-            self._actor_params, self._online_flat[:n_actor], self._grad_flat[:n_actor],
+            self._actor_params, self._actor_flat, self._grad_flat[:n_actor],
             lr=cfg.actor_lr,
         )  # fmt: skip
         self.critic_opt = FusedAdam(
@@ -293,9 +293,13 @@ class DDPGAgent:
                 self.actor, self.critic, self.actor_target, self.critic_target
             )
         self._greedy = GreedyAct(self.actor) if isinstance(self.actor, Actor) else None
+        # what tests and races drive: the average where one is kept, else the online actor
+        self._eval_actor = self.actor if self.actor_eval is None else self.actor_eval
         self._greedy_eval = (
-            GreedyAct(self.actor_eval) if isinstance(self.actor_eval, Actor) else None
-        )
+            self._greedy if self.actor_eval is None
+            else GreedyAct(self.actor_eval) if isinstance(self.actor_eval, Actor) else None
+        )  # fmt: skip
+        self._eval_rate = 1.0 / cfg.eval_ema_updates if cfg.eval_ema_updates else 0.0
         self.updates = 0
         self.last_priorities: np.ndarray | None = None
 
@@ -314,20 +318,21 @@ class DDPGAgent:
     def act(self, obs_window: np.ndarray) -> np.ndarray:
         """Greedy action for one window ``(w, obs_dim)``: mu(s), or SAC's squashed mean
         ``c + k tanh(m(s))`` (exploration is added outside, or by :meth:`explore`)."""
-        if self._greedy is not None:
-            return self._greedy(obs_window)
-        with torch.no_grad():
-            return self.actor(self._window_tensor(obs_window))[0].cpu().numpy()
+        return self._greedy_action(self.actor, self._greedy, obs_window)
 
     def act_eval(self, obs_window: np.ndarray) -> np.ndarray:
         """The greedy action of a test or a race: :meth:`act` of the averaged actor when
         ``cfg.eval_ema_updates`` keeps one, of the online actor otherwise (the paper's)."""
-        if self.actor_eval is None:
-            return self.act(obs_window)
-        if self._greedy_eval is not None:
-            return self._greedy_eval(obs_window)
+        return self._greedy_action(self._eval_actor, self._greedy_eval, obs_window)
+
+    def _greedy_action(
+        self, actor: nn.Module, greedy: GreedyAct | None, obs_window: np.ndarray
+    ) -> np.ndarray:
+        """``actor``'s greedy action: through its hand-written forward where it has one."""
+        if greedy is not None:
+            return greedy(obs_window)
         with torch.no_grad():
-            return self.actor_eval(self._window_tensor(obs_window))[0].cpu().numpy()
+            return actor(self._window_tensor(obs_window))[0].cpu().numpy()
 
     def explore(self, obs_window: np.ndarray) -> np.ndarray:
         """The training loop's action for one window: SAC's sample ``a ~ pi(.|s)``; for DDPG and
@@ -520,8 +525,7 @@ class DDPGAgent:
         theta_eval) / eval_ema_updates."""
         self._target_flat.lerp_(self._target_source, self.cfg.tau)
         if self._eval_flat is not None:
-            rate = 1.0 / self.cfg.eval_ema_updates
-            self._eval_flat.lerp_(self._online_flat[: self._n_actor], rate)
+            self._eval_flat.lerp_(self._actor_flat, self._eval_rate)
 
     @torch.no_grad()
     def sync_actor_copies(self) -> None:
