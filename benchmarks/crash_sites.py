@@ -22,6 +22,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import argparse  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
+import sys  # noqa: E402
 from collections import Counter  # noqa: E402
 from typing import Any  # noqa: E402
 
@@ -54,13 +55,16 @@ def clean_laps(agent: DDPGAgent, envs: RunEnvs, track: str, starts: list[float])
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("jobs", nargs="+", help="job folders (time_to_competence.py --out DIR)")
+    ap.add_argument("jobs", nargs="*", help="job folders (time_to_competence.py --out DIR); "
+                    "none (as `make bench` runs it): nothing to read, an empty result")
     ap.add_argument("--bin-m", type=float, default=20.0, help="width of a crash site")
     ap.add_argument("--top", type=int, default=2, help="sites whose share is reported")
     ap.add_argument("--starts", type=int, default=0,
                     help="also drive the last checkpoint from N starts, online and target actor")
     args = ap.parse_args()  # fmt: skip
     configure_torch(1)
+    if not args.jobs:
+        print("crash_sites: no job folders given, nothing to read", file=sys.stderr)
     runs: list[dict[str, Any]] = []
     sites: Counter[float] = Counter()
     for job in args.jobs:

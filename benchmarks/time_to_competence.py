@@ -19,7 +19,8 @@ bot that demonstrated (the follower on ``demos.line``; its lap is ``summary["dem
 Also the run's best clean lap over the reference limit and its clean-start rate: the fraction of
 test rounds, from the round of the first clean lap on (that round included), in which at least
 2 of the 3 starts drive a lap with zero lap damage (from the job's tests.parquet). A run stops
-at (c) or when its CPU budget is spent.
+at (c) or when its CPU budget is spent; with ``--to-budget`` only at the budget, so that the best
+lap / limit is what the budget buys (stopped at (c), a run's best is its first lap past the bot).
 
 The anchor, in the same run: Stable-Baselines3 SAC at its defaults (``SAC("MlpPolicy", env,
 seed=seed)``, the ``bench`` extra) on the same env (FormulaRacing-v0 from
@@ -322,6 +323,16 @@ def _result(
 
 
 # --- one (entrant, seed) run -------------------------------------------------------------------
+def stop_lap_s(task: Mapping[str, Any], demo_lap_s: float | None = None) -> float:
+    """The clean lap that ends a run early: (c)'s, or none (-inf) with ``--to-budget``, where
+    every run spends its whole budget so that its best lap / limit is the budget's own (a run
+    stopped at (c) keeps the first lap under the best bot as its best)."""
+    if task.get("to_budget"):
+        return -math.inf
+    bots = task["bots"]
+    return thresholds(bots["centre_s"], bots["mincurv_s"], demo_lap_s)["beat_mincurv_bot"]
+
+
 def run_entrant(task: dict[str, Any]) -> dict[str, Any]:
     """One training run in this process; CPU-seconds are this process's own."""
     import numpy as np
@@ -347,8 +358,7 @@ def run_entrant(task: dict[str, Any]) -> dict[str, Any]:
         seq = np.random.SeedSequence(spec.seed).spawn(4)[3]  # the loop's demonstration stream
         lap = collect_demonstrations(spec, envs, obs_dim, act_dim, seq).key_lap_s
         predicted_demo = lap if math.isfinite(lap) else None
-    bots = task["bots"]
-    stop_at = thresholds(bots["centre_s"], bots["mincurv_s"], predicted_demo)["beat_mincurv_bot"]
+    stop_at = stop_lap_s(task, predicted_demo)
     budget = float(task["budget_cpu_s"])
     cpu_by_episode: dict[int, float] = {}
     label, seed = task["label"], task["seed"]
@@ -412,8 +422,7 @@ def run_sb3(task: dict[str, Any]) -> dict[str, Any]:
     configure_torch(1)
     spec = RunSpec.from_json(task["spec"], "benchmark spec")
     _warm_up(spec)
-    bots = task["bots"]
-    stop_at = thresholds(bots["centre_s"], bots["mincurv_s"])["beat_mincurv_bot"]
+    stop_at = stop_lap_s(task)
     budget = float(task["budget_cpu_s"])
     label, seed, track = task["label"], task["seed"], spec.key_track
     cpu_by_episode: dict[int, float] = {}
@@ -505,7 +514,8 @@ def render(result: Mapping[str, Any]) -> str:
     bots = result["bots"]
     lines = [
         f"time to competence on {result['track']} (reference {result['reference']}, "
-        f"lac {result['lac']}), budget {result['budget_cpu_s']:.0f} CPU-s, seeds "
+        f"lac {result['lac']}), budget {result['budget_cpu_s']:.0f} CPU-s"
+        f"{' (every run to the budget)' if result.get('to_budget') else ' (or until (c))'}, seeds "
         f"{','.join(map(str, result['seeds']))}, tests every {TEST_EVERY} episodes from "
         f"{TEST_STARTS} starts",
         f"follower: centre {bots['centre_s']:.3f} s, mincurv {bots['mincurv_s']:.3f} s; "
@@ -632,6 +642,9 @@ def main() -> None:
                     help="schedule setting (training.spec.Schedule, e.g. cars=4) for every "
                     "entrant, on top of the benchmark's own (repeatable)")
     ap.add_argument("--no-sb3", action="store_true", help="skip the SB3 SAC anchor")
+    ap.add_argument("--to-budget", action="store_true",
+                    help="train every run for its whole budget instead of stopping at (c): "
+                    "best lap / limit is then the budget's, not the first lap past the best bot")
     ap.add_argument("--out", default=None, help="folder for the job folders (default: temp)")
     ap.add_argument("--plot", default=None, metavar="FILE",
                     help="draw each run's clean test laps against CPU-s into FILE.png/.pdf")
@@ -677,7 +690,8 @@ def main() -> None:
 
     out_root = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="ttc-"))
     print(f"job folders under {out_root}", file=sys.stderr)
-    base = {"track": args.track, "bots": bots, "budget_cpu_s": args.budget_cpu_s}
+    base = {"track": args.track, "bots": bots, "budget_cpu_s": args.budget_cpu_s,
+            "to_budget": args.to_budget}  # fmt: skip
     tasks: list[dict[str, Any]] = []
     specs: dict[str, Any] = {}
     use_sb3 = not args.no_sb3
@@ -703,7 +717,13 @@ def main() -> None:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
 
-        with ProcessPoolExecutor(min(args.jobs, len(tasks)), mp.get_context("spawn")) as pool:
+        from formula_tourney.tourney.executors import die_with_parent
+
+        # a run killed from the shell (kill, Ctrl-C of a hung parent) takes its workers with it:
+        # orphans went on training and took the cores of the next benchmark
+        with ProcessPoolExecutor(min(args.jobs, len(tasks)), mp.get_context("spawn"),
+                                 initializer=die_with_parent,
+                                 initargs=(os.getpid(),)) as pool:  # fmt: skip
             runs = list(pool.map(run_job, tasks))
     else:
         runs = [run_job(t) for t in tasks]
@@ -734,7 +754,8 @@ def main() -> None:
         })  # fmt: skip
     result = {
         "benchmark": "time_to_competence", "track": args.track, "reference": args.reference,
-        "lac": args.lac, "budget_cpu_s": args.budget_cpu_s, "seeds": seeds,
+        "lac": args.lac, "budget_cpu_s": args.budget_cpu_s, "to_budget": args.to_budget,
+        "seeds": seeds,
         "max_steps": args.max_steps, "test_every_episodes": TEST_EVERY,
         "test_starts": TEST_STARTS, "test_max_steps": test_max_steps,
         "clean_start_min": CLEAN_STARTS, "overrides": overrides,

@@ -81,6 +81,13 @@ def test_demonstrator_lap_tightens_the_bot_milestones() -> None:
     assert ttc.thresholds(35.4, 34.7, None) == ttc.thresholds(35.4, 34.7, NAN)
 
 
+def test_a_run_stops_at_the_best_bot_unless_it_trains_to_the_budget() -> None:
+    task = {"bots": {"centre_s": 35.4, "mincurv_s": 34.7}}
+    assert ttc.stop_lap_s(task) == 34.7
+    assert ttc.stop_lap_s(task, demo_lap_s=34.2) == 34.2  # with demos: past the demonstrator
+    assert ttc.stop_lap_s({**task, "to_budget": True}) == -math.inf  # no lap ends it
+
+
 def test_clean_start_rate_from_the_first_clean_lap_on() -> None:
     # rounds 15..30: >= 2 clean starts in 15, 20, 30; not in 25 -> 3/4
     assert ttc.clean_start_rate(TABLE, "oval", 15) == pytest.approx(0.75)
