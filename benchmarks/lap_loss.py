@@ -28,22 +28,17 @@ from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
 
 from formula_tourney.bots.baselines import bot_report  # noqa: E402
 from formula_tourney.bots.reference import reference_offsets  # noqa: E402
-from formula_tourney.lines.lap_loss import (  # noqa: E402
-    SectorLoss,
-    driven_time_at,
-    lap_loss,
-    track_sectors,
-)
+from formula_tourney.lines.lap_loss import LapLoss, lap_loss, track_sectors  # noqa: E402
 from formula_tourney.lines.registry import check_kind  # noqa: E402
 from formula_tourney.lines.speed_profile import speed_profile  # noqa: E402
+from formula_tourney.report.plots import one_lap, save_figure  # noqa: E402
 from formula_tourney.results.folder import JobFolder  # noqa: E402
-from formula_tourney.results.layout import TRACE_COLUMNS  # noqa: E402
 from formula_tourney.sim.catalog import load_track  # noqa: E402
 from formula_tourney.sim.track import Track  # noqa: E402
-from formula_tourney.training.evaluate import best_lap_trace  # noqa: E402
 from formula_tourney.training.spec import RunSpec  # noqa: E402
 
 
@@ -66,12 +61,8 @@ def bot_lap(track: Track, line: str, laps: int = 3) -> tuple[dict[str, np.ndarra
     best = float(report["best_lap_s"])
     if not math.isfinite(best):
         return None, math.nan
-    raw = report["_trace"]
-    # the env's lap count is start-line crossings less the first (the car starts before it)
-    done = np.maximum(np.asarray(raw["lap"], dtype=float) - 1.0, 0.0)
-    rows = np.column_stack([np.asarray(raw[c], dtype=float) for c in TRACE_COLUMNS] + [done])
-    frame = best_lap_trace([tuple(r) for r in rows], report["laps"], report["lap_damage"], best)
-    return {c: frame[c].to_numpy(float) for c in frame.columns}, best
+    frame = one_lap(pd.DataFrame(report["_trace"]), report["laps"], report["lap_damage"])
+    return {c: frame[c].to_numpy(float) for c in ("time_s", "s_m", "speed_kmh")}, best
 
 
 def print_table(track: Track, limit_s: float, drivers: list[dict[str, Any]]) -> None:
@@ -82,38 +73,40 @@ def print_table(track: Track, limit_s: float, drivers: list[dict[str, Any]]) -> 
           "the minimum speed driven / the profile's (km/h)", file=sys.stderr)  # fmt: skip
     print(f"{'sector':<24}{'profile s':>10}" + "".join(f"{d['name']:>{width}}" for d in drivers),
           file=sys.stderr)  # fmt: skip
-    for k, sec in enumerate(drivers[0]["sectors"]):
-        cells = [d["sectors"][k] for d in drivers]
-        row = "".join(f"{c['loss_s']:+.3f} {c['min_speed_kmh']:.0f}/"
-                      f"{c['profile_min_speed_kmh']:.0f}".rjust(width) for c in cells)  # fmt: skip
-        print(f"{sec['name']:<24}{sec['profile_s']:>10.2f}{row}", file=sys.stderr)
+    first = drivers[0]["loss"]
+    for k, sec in enumerate(first.sectors):
+        cells = [d["loss"].sectors[k] for d in drivers]
+        row = "".join(f"{c.loss_s:+.3f} {c.min_speed_kmh:.0f}/"
+                      f"{c.profile_min_speed_kmh:.0f}".rjust(width) for c in cells)  # fmt: skip
+        print(f"{sec.name:<24}{sec.profile_s:>10.2f}{row}", file=sys.stderr)
+    for kind in first.loss_by_kind():
+        profile_s = sum(sec.profile_s for sec in first.sectors if sec.kind == kind)
+        row = "".join(f"{d['loss'].loss_by_kind()[kind]:+.3f}".rjust(width)
+                      for d in drivers)  # fmt: skip
+        print(f"{'all ' + kind + 's':<24}{profile_s:>10.2f}{row}", file=sys.stderr)
     row = "".join(f"{d['lap_s'] - limit_s:+.3f} = {d['lap_s']:.2f} s".rjust(width) for d in drivers)
     print(f"{'lap':<24}{limit_s:>10.2f}{row}", file=sys.stderr)
 
 
 def plot(track: Track, profile: Any, drivers: list[dict[str, Any]], out: Path) -> list[Path]:
     """Speed along the track and the running time lost against the profile, one line per lap."""
-    import matplotlib
+    import matplotlib  # only a run with --plot pays for matplotlib
 
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
 
-    from formula_tourney.report.plots import save_figure
-
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 5.6), sharex=True)
     top.plot(track.s_m, profile.speed_kmh, color="black", lw=1.2, label="QSS profile")
-    prof_t = np.concatenate([profile.time_s, [profile.lap_time_s]])
-    prof_s = np.concatenate([track.s_m, [track.length_m]])
     for d in drivers:
         s = np.mod(d["trace"]["s_m"], track.length_m)
         order = np.argsort(s)
         top.plot(s[order], d["trace"]["speed_kmh"][order], lw=0.9,
                  label=f"{d['name']} ({d['lap_s']:.2f} s)")  # fmt: skip
-        stations, times = d["curve"]
-        bottom.plot(stations, times - np.interp(stations, prof_s, prof_t), lw=0.9)
-    for sec in drivers[0]["sectors"]:
+        loss: LapLoss = d["loss"]
+        bottom.plot(loss.stations_m, loss.loss_s, lw=0.9)
+    for sec in drivers[0]["loss"].sectors:
         for ax in (top, bottom):
-            ax.axvline(sec["s_start_m"], color="grey", lw=0.4, alpha=0.5)
+            ax.axvline(sec.s_start_m, color="grey", lw=0.4, alpha=0.5)
     top.set_ylabel("speed (km/h)")
     top.legend(fontsize=7, loc="lower right")
     bottom.set_ylabel("time lost to the profile (s)")
@@ -152,10 +145,8 @@ def main() -> None:
         if trace is None:
             print(f"{name}: no clean lap, left out", file=sys.stderr)
             continue
-        losses: list[SectorLoss] = lap_loss(trace, lap, track, profile, sectors)
-        curve = driven_time_at(trace["time_s"], trace["s_m"], lap, track.length_m)
-        drivers.append({"name": name, "lap_s": lap, "trace": trace, "curve": curve,
-                        "sectors": [x.as_dict() for x in losses]})  # fmt: skip
+        drivers.append({"name": name, "lap_s": lap, "trace": trace,
+                        "loss": lap_loss(trace, lap, track, profile, sectors)})  # fmt: skip
     if not drivers:
         sys.exit("lap_loss: no clean lap to read")
     print_table(track, profile.lap_time_s, drivers)
@@ -164,8 +155,10 @@ def main() -> None:
         "profile_lap_s": round(profile.lap_time_s, 3),
         "drivers": [{"name": d["name"], "lap_s": round(d["lap_s"], 3),
                      "lap_over_profile": round(d["lap_s"] / profile.lap_time_s, 4),
+                     "loss_by_kind_s": {k: round(v, 3)
+                                        for k, v in d["loss"].loss_by_kind().items()},
                      "sectors": [{k: (round(v, 3) if isinstance(v, float) else v)
-                                  for k, v in s.items()} for s in d["sectors"]]}
+                                  for k, v in s.as_dict().items()} for s in d["loss"].sectors]}
                     for d in drivers],
     }  # fmt: skip
     if args.plot:

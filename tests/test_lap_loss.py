@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from formula_tourney.bots.follower import drive
@@ -12,6 +13,7 @@ from formula_tourney.bots.reference import reference_offsets
 from formula_tourney.errors import UserInputError
 from formula_tourney.lines.lap_loss import driven_time_at, lap_loss, track_sectors
 from formula_tourney.lines.speed_profile import speed_profile
+from formula_tourney.report.plots import one_lap
 from formula_tourney.sim.catalog import load_track
 from formula_tourney.sim.track import Track
 
@@ -45,6 +47,7 @@ def oval() -> Track:
 def test_sectors_are_the_tracks_segments_and_cover_the_lap(oval: Track) -> None:
     sectors = track_sectors(oval)
     assert [s.name for s in sectors][:2] == ["1 straight 150 m", "2 arc R500 24deg"]
+    assert [s.kind for s in sectors] == [str(seg["type"]) for seg in oval.segments]
     assert len(sectors) == len(oval.segments) == 6
     assert sectors[0].s_start_m == 0.0 and sectors[-1].s_end_m == pytest.approx(oval.length_m)
     assert all(a.s_end_m == b.s_start_m for a, b in zip(sectors, sectors[1:], strict=False))
@@ -58,6 +61,7 @@ def test_a_track_without_segments_gets_equal_bins() -> None:
     assert len(sectors) == round(track.length_m / 250.0)
     widths = [s.s_end_m - s.s_start_m for s in sectors]
     assert sum(widths) == pytest.approx(track.length_m)
+    assert {s.kind for s in sectors} == {"bin"}
     assert max(widths) - min(widths) < 1e-9
     with pytest.raises(UserInputError, match="sector length"):
         track_sectors(track, bin_m=0.0)
@@ -65,7 +69,7 @@ def test_a_track_without_segments_gets_equal_bins() -> None:
 
 def test_the_profile_driven_loses_nothing_anywhere(oval: Track) -> None:
     trace, lap, prof = profile_lap(oval)
-    losses = lap_loss(trace, lap, oval, prof, track_sectors(oval))
+    losses = lap_loss(trace, lap, oval, prof, track_sectors(oval)).sectors
     assert lap == pytest.approx(prof.lap_time_s)
     assert max(abs(x.loss_s) for x in losses) < 0.005
     assert sum(x.driven_s for x in losses) == pytest.approx(lap)
@@ -73,7 +77,7 @@ def test_the_profile_driven_loses_nothing_anywhere(oval: Track) -> None:
 
 def test_a_uniformly_slower_lap_loses_in_proportion(oval: Track) -> None:
     trace, lap, prof = profile_lap(oval, stretch=1.02)
-    losses = lap_loss(trace, lap, oval, prof, track_sectors(oval))
+    losses = lap_loss(trace, lap, oval, prof, track_sectors(oval)).sectors
     for x in losses:
         assert x.loss_s == pytest.approx(0.02 * x.profile_s, abs=0.005)
     assert sum(x.loss_s for x in losses) == pytest.approx(lap - prof.lap_time_s, abs=1e-9)
@@ -83,7 +87,7 @@ def test_a_delay_is_charged_to_its_sector_only(oval: Track) -> None:
     sectors = track_sectors(oval)
     at = 0.5 * (sectors[3].s_start_m + sectors[3].s_end_m)  # the middle of the first R250 arc
     trace, lap, prof = profile_lap(oval, delay_at_m=at, delay_s=1.0)
-    losses = lap_loss(trace, lap, oval, prof, sectors)
+    losses = lap_loss(trace, lap, oval, prof, sectors).sectors
     assert losses[3].loss_s == pytest.approx(1.0, abs=0.01)
     assert max(abs(x.loss_s) for k, x in enumerate(losses) if k != 3) < 0.01
 
@@ -102,17 +106,30 @@ def test_the_followers_lap_adds_up_to_its_gap_and_misses_the_corner_speed(oval: 
     offsets = reference_offsets(oval, "mincurv")
     prof = speed_profile(oval, offsets)
     result = drive(oval, offsets, laps=2)
-    trace = {k: np.asarray(v, dtype=float) for k, v in result["trace"].items()}
-    best = result["lap_times_s"][1]  # the flying lap
-    in_lap = trace["lap"] == 2
-    lap_trace = {k: v[in_lap] for k, v in trace.items()}
-    lap_trace["time_s"] = lap_trace["time_s"] - lap_trace["time_s"][0]
-    losses = lap_loss(lap_trace, best, oval, prof, track_sectors(oval))
-    assert math.isclose(sum(x.loss_s for x in losses), best - prof.lap_time_s, abs_tol=1e-9)
-    arcs = [x for x in losses if "R250" in x.name]
+    frame = one_lap(pd.DataFrame(result["trace"]), result["lap_times_s"], result["lap_damage"])
+    best = min(result["lap_times_s"])  # the flying lap
+    lap_trace = {c: frame[c].to_numpy(float) for c in ("time_s", "s_m", "speed_kmh")}
+    loss = lap_loss(lap_trace, best, oval, prof, track_sectors(oval))
+    assert math.isclose(sum(x.loss_s for x in loss.sectors), best - prof.lap_time_s, abs_tol=1e-9)
+    # the running loss the figure draws ends at the lap's gap, and the kinds split it
+    assert loss.loss_s[-1] == pytest.approx(best - prof.lap_time_s, abs=1e-9)
+    by_kind = loss.loss_by_kind()
+    assert set(by_kind) == {"straight", "arc"}
+    assert sum(by_kind.values()) == pytest.approx(best - prof.lap_time_s, abs=1e-9)
+    arcs = [x for x in loss.sectors if "R250" in x.name]
     # flat out in the long arcs, the simulated car holds less than the QSS corner speed
     assert all(x.min_speed_kmh < x.profile_min_speed_kmh - 3.0 for x in arcs)
     assert all(x.loss_s > 0.1 for x in arcs)
+
+
+def test_a_sectors_profile_minimum_is_the_profiles_own(oval: Track) -> None:
+    trace, lap, prof = profile_lap(oval)
+    sectors = track_sectors(oval)
+    losses = lap_loss(trace, lap, oval, prof, sectors).sectors
+    for sec, x in zip(sectors, losses, strict=True):
+        inside = (oval.s_m >= sec.s_start_m) & (oval.s_m <= sec.s_end_m)
+        assert x.profile_min_speed_kmh <= prof.speed_kmh[inside].min() + 1e-9
+        assert x.profile_min_speed_kmh >= prof.speed_kmh.min() - 1e-9
 
 
 def test_a_car_that_rolls_back_keeps_a_monotone_curve(oval: Track) -> None:

@@ -225,6 +225,23 @@ def test_one_lap_picks_the_fastest_complete_lap() -> None:
     assert no_time["time_s"].iloc[-1] == pytest.approx(105.0 / 10.0)  # 36 km/h = 10 m/s
 
 
+def test_one_lap_chooses_by_the_drives_lap_times_and_skips_damaged_laps() -> None:
+    trace = pd.DataFrame({
+        "time_s": [0.0, 1.0, 2.0, 4.0, 6.0, 7.0, 8.0, 9.0, 9.5, 12.0, 13.0],
+        "distance_m": [0.0, 10.0, 20.0, 40.0, 60.0, 70.0, 80.0, 100.0, 105.0, 130.0, 140.0],
+        "speed_kmh": 36.0, "x_m": 0.0, "y_m": 0.0,
+        "lap": [0, 0, 1, 1, 1, 2, 2, 2, 3, 3, 4],
+    })
+    # the rows say lap 2 is fastest (2 s); the drive's exact times say lap 1 (3.9 s against 4.1)
+    lap = plots.one_lap(trace, [3.9, 4.1, 4.5], [0.0, 0.0, 0.0])
+    assert lap["time_s"].tolist() == [0.0, 2.0, 4.0]
+    # lap 1 cut a corner: of the clean laps 2 (4.1 s) and 3 (4.5 s), lap 2
+    lap = plots.one_lap(trace, [3.9, 4.1, 4.5], [1.5, 0.0, 0.0])
+    assert lap["distance_m"].tolist() == [0.0, 10.0, 30.0]
+    with pytest.raises(UserInputError, match="no complete clean lap"):
+        plots.one_lap(trace, [3.9, 4.1, 4.5], [1.0, 1.0, 1.0])
+
+
 def test_delta_time_by_hand() -> None:
     d = np.linspace(0.0, 100.0, 11)
     a = pd.DataFrame({"distance_m": d, "time_s": d / 10.0})  # 10 m/s

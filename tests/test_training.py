@@ -17,7 +17,7 @@ from formula_tourney.errors import UserInputError
 from formula_tourney.results.layout import JOB_TABLES, SCHEMA_VERSION
 from formula_tourney.training import envs as run_envs
 from formula_tourney.training import loop
-from formula_tourney.training.evaluate import best_lap_trace, start_positions
+from formula_tourney.training.evaluate import _lap_trace, start_positions
 from formula_tourney.training.presets import PRESETS
 from formula_tourney.training.spec import RunSpec, build_run_spec
 
@@ -171,7 +171,7 @@ def test_best_lap_trace_is_cut_from_the_lap_window() -> None:
         t = 0.2 * k
         laps = 0 if t < 4.0 - 1e-9 else (1 if t < 6.6 - 1e-9 else 2)
         rows.append((t, 10 * t, t, 0.0, 0.0, 0.0, 100.0, 0.1, 1.0, 0.0, float(laps)))
-    trace = best_lap_trace(rows, [3.0, 2.6], [5.0, 0.0], 2.6)
+    trace = _lap_trace(rows, [3.0, 2.6], [5.0, 0.0], 2.6)
     # steps from t = 4.0 to 6.6 (14 steps), re-timed from the lap start
     assert len(trace) == 14
     assert trace.time_s.iloc[0] == pytest.approx(0.0)

@@ -14,6 +14,7 @@ losses add up to the lap's whole gap to the profile exactly.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -25,11 +26,14 @@ from formula_tourney.sim.track import Track
 
 @dataclass(frozen=True)
 class Sector:
-    """A stretch of track between two stations, named for a reader (``3 arc R12 175deg``)."""
+    """A stretch of track between two stations, named for a reader (``3 arc R12 175deg``);
+    ``kind`` (straight, arc, or bin on a track without a segment list) lets a reader add the
+    losses of all braking zones, or all corners, into one figure."""
 
     name: str
     s_start_m: float
     s_end_m: float
+    kind: str = "bin"
 
 
 @dataclass(frozen=True)
@@ -37,6 +41,7 @@ class SectorLoss:
     """One sector of one lap against the profile: times, the loss, and speeds (km/h)."""
 
     name: str
+    kind: str
     s_start_m: float
     s_end_m: float
     driven_s: float
@@ -51,28 +56,52 @@ class SectorLoss:
         return asdict(self)
 
 
+@dataclass(frozen=True)
+class LapLoss:
+    """One lap against the profile: the running loss along the track and its sectors' shares.
+
+    The sector table and the loss-along-the-track figure both read this one object, so the two
+    can never disagree: a sector's loss is the rise of the running loss over it.
+    """
+
+    lap_s: float
+    profile_lap_s: float
+    stations_m: np.ndarray
+    time_s: np.ndarray
+    loss_s: np.ndarray
+    sectors: list[SectorLoss]
+
+    def loss_by_kind(self) -> dict[str, float]:
+        """Total loss per sector kind (straight / arc / bin), in the sectors' order of kinds."""
+        totals: dict[str, float] = {}
+        for sec in self.sectors:
+            totals[sec.kind] = totals.get(sec.kind, 0.0) + sec.loss_s
+        return totals
+
+
 def track_sectors(track: Track, bin_m: float = 100.0) -> list[Sector]:
     """The track's own segments (straights and arcs, as its file lists them) when it has them,
     else equal bins of about ``bin_m`` (a track made from a polyline has no segment list)."""
     length = float(track.length_m)
     starts = [float(seg["s_start_m"]) for seg in track.segments if "s_start_m" in seg]
     if starts and len(starts) == len(track.segments):
-        names = []
+        names, kinds = [], []
         for k, seg in enumerate(track.segments, start=1):
-            if seg.get("type") == "arc" and "radius_m" in seg:
+            kind = str(seg.get("type", "segment"))
+            if kind == "arc" and "radius_m" in seg:
                 names.append(f"{k} arc R{float(seg['radius_m']):.0f} "
                              f"{abs(float(seg.get('angle_deg', 0.0))):.0f}deg")  # fmt: skip
             else:
-                names.append(f"{k} {seg.get('type', 'segment')} "
-                             f"{float(seg.get('arc_length_m', 0.0)):.0f} m")  # fmt: skip
+                names.append(f"{k} {kind} {float(seg.get('arc_length_m', 0.0)):.0f} m")
+            kinds.append(kind)
         ends = [*starts[1:], length]
-        return [Sector(n, a, min(b, length)) for n, a, b in zip(names, starts, ends, strict=True)
-                if b > a]  # fmt: skip
+        spans = zip(names, starts, ends, kinds, strict=True)
+        return [Sector(n, a, min(b, length), kind) for n, a, b, kind in spans if b > a]
     if bin_m <= 0:
         raise UserInputError(f"sector length must be > 0 m, got {bin_m}")
     count = max(1, int(round(length / bin_m)))
     edges = np.linspace(0.0, length, count + 1)
-    return [Sector(f"{k + 1} {a:.0f}-{b:.0f} m", float(a), float(b))
+    return [Sector(f"{k + 1} {a:.0f}-{b:.0f} m", float(a), float(b), "bin")
             for k, (a, b) in enumerate(zip(edges[:-1], edges[1:], strict=True))]  # fmt: skip
 
 
@@ -121,9 +150,10 @@ def _time_at(station_m: float, stations: np.ndarray, times: np.ndarray) -> float
 
 
 def lap_loss(trace: dict[str, np.ndarray], lap_s: float, track: Track, profile: SpeedProfile,
-             sectors: list[Sector]) -> list[SectorLoss]:
-    """Each sector's time in the lap ``trace`` (columns time_s, s_m, speed_kmh; one timed lap)
-    against ``profile``'s time there; the losses sum to ``lap_s - profile.lap_time_s``."""
+             sectors: list[Sector]) -> LapLoss:
+    """The lap ``trace`` (columns time_s, s_m, speed_kmh; one timed lap of ``lap_s``) against
+    ``profile``: the running loss at the lap's stations and each sector's share of it; the
+    sectors' losses sum to ``lap_s - profile.lap_time_s`` when they cover the lap."""
     length = float(track.length_m)
     if profile.time_s.shape != track.s_m.shape:
         raise UserInputError(f"the profile has {profile.time_s.size} samples, track "
@@ -132,6 +162,7 @@ def lap_loss(trace: dict[str, np.ndarray], lap_s: float, track: Track, profile: 
     prof_s = np.concatenate([track.s_m, [length]])
     prof_t = np.concatenate([profile.time_s, [profile.lap_time_s]])
     prof_v = np.concatenate([profile.speed_kmh, [profile.speed_kmh[0]]])
+    running = times - np.interp(stations, prof_s, prof_t)
     s_rows = np.mod(np.asarray(trace["s_m"], dtype=float), length)
     v_rows = np.asarray(trace["speed_kmh"], dtype=float)
     out = []
@@ -140,14 +171,18 @@ def lap_loss(trace: dict[str, np.ndarray], lap_s: float, track: Track, profile: 
         driven = float(np.interp(b, stations, times) - np.interp(a, stations, times))
         ref = float(np.interp(b, prof_s, prof_t) - np.interp(a, prof_s, prof_t))
         rows = (s_rows >= a) & (s_rows < b)
-        grid = np.linspace(a, b, max(3, int((b - a) / 2.0)))
+        # the profile's own samples inside the sector and its values at the two ends
+        inside = (prof_s > a) & (prof_s < b)
+        prof_min = min(float(np.interp(a, prof_s, prof_v)), float(np.interp(b, prof_s, prof_v)),
+                       float(prof_v[inside].min()) if inside.any() else math.inf)  # fmt: skip
         near_end = int(np.argmin(np.abs(((s_rows - b + 0.5 * length) % length) - 0.5 * length)))
         out.append(SectorLoss(
-            name=sec.name, s_start_m=a, s_end_m=b, driven_s=driven, profile_s=ref,
-            loss_s=driven - ref,
+            name=sec.name, kind=sec.kind, s_start_m=a, s_end_m=b, driven_s=driven,
+            profile_s=ref, loss_s=driven - ref,
             min_speed_kmh=float(v_rows[rows].min()) if rows.any() else float("nan"),
-            profile_min_speed_kmh=float(np.interp(grid, prof_s, prof_v).min()),
+            profile_min_speed_kmh=prof_min,
             exit_speed_kmh=float(v_rows[near_end]),
             profile_exit_speed_kmh=float(np.interp(b, prof_s, prof_v)),
         ))  # fmt: skip
-    return out
+    return LapLoss(lap_s=float(lap_s), profile_lap_s=float(profile.lap_time_s),
+                   stations_m=stations, time_s=times, loss_s=running, sectors=out)  # fmt: skip

@@ -326,10 +326,14 @@ def _load_track(name: str) -> Any:
         return None
 
 
-def one_lap(trace: pd.DataFrame) -> pd.DataFrame:
+def one_lap(trace: pd.DataFrame, lap_times_s: list[float] | None = None,
+            lap_damage: list[float] | None = None) -> pd.DataFrame:
     """The fastest complete lap of a multi-lap trace (the follower's drive has a ``lap`` column
     counting start-line crossings), time and distance rebased to 0; other traces unchanged.
 
+    The rows' own times only time a lap to one control step; given the drive's exact
+    ``lap_times_s`` (lap k's rows carry ``lap == k``) the fastest is chosen by them, and laps
+    with ``lap_damage`` > 0 are not candidates (a lap that cut a corner is not a clean lap).
     A trace without ``time_s`` gets one integrated from distance and speed.
     """
     frame = trace.reset_index(drop=True)
@@ -341,14 +345,22 @@ def one_lap(trace: pd.DataFrame) -> pd.DataFrame:
         frame["time_s"] = np.cumsum(dt)
     if "lap" in frame.columns:
         laps = frame["lap"].to_numpy()
-        complete = [k for k in np.unique(laps) if k >= 1 and (laps > k).any()]
-        if complete:
-            def duration(k: int) -> float:
-                rows = frame.loc[laps == k, "time_s"]
-                return float(rows.iloc[-1] - rows.iloc[0])
+        complete = [int(k) for k in np.unique(laps) if k >= 1 and (laps > k).any()]
+        if lap_times_s is not None:
+            damage = list(lap_damage) if lap_damage is not None else [0.0] * len(lap_times_s)
+            complete = [k for k in complete if k <= len(lap_times_s) and damage[k - 1] <= 0.0]
 
+        def duration(k: int) -> float:
+            if lap_times_s is not None:
+                return float(lap_times_s[k - 1])
+            rows = frame.loc[laps == k, "time_s"]
+            return float(rows.iloc[-1] - rows.iloc[0])
+
+        if complete:
             best = min(complete, key=duration)
             frame = frame.loc[laps == best].reset_index(drop=True)
+        elif lap_times_s is not None:
+            raise UserInputError("the drive has no complete clean lap to cut from its trace")
     frame["time_s"] = frame["time_s"] - float(frame["time_s"].iloc[0])
     frame["distance_m"] = frame["distance_m"] - float(frame["distance_m"].iloc[0])
     return frame

@@ -120,11 +120,11 @@ def run_test_episode(
         grip_scale=float(info.get("grip_scale", math.nan)),
     )
     if record_trace and math.isfinite(ep.best_lap_s):
-        ep.best_trace = best_lap_trace(rows, lap_times, lap_damage, ep.best_lap_s)
+        ep.best_trace = _lap_trace(rows, lap_times, lap_damage, ep.best_lap_s)
     return ep
 
 
-def best_lap_trace(
+def _lap_trace(
     rows: list[tuple[float, ...]],
     lap_times: list[float],
     lap_damage: list[float],
