@@ -37,27 +37,31 @@ from formula_tourney.lines.registry import check_kind  # noqa: E402
 from formula_tourney.lines.speed_profile import speed_profile  # noqa: E402
 from formula_tourney.report.plots import one_lap, save_figure  # noqa: E402
 from formula_tourney.results.folder import JobFolder  # noqa: E402
+from formula_tourney.sim.car_params import CarParams  # noqa: E402
 from formula_tourney.sim.catalog import load_track  # noqa: E402
 from formula_tourney.sim.track import Track  # noqa: E402
 from formula_tourney.training.spec import RunSpec  # noqa: E402
 
 
-def run_lap(job: str) -> tuple[str, str, dict[str, np.ndarray] | None, float]:
-    """A job folder's key track, its label, and the trace and time of its best clean test lap."""
+def run_lap(job: str) -> tuple[str, str, dict[str, np.ndarray] | None, float, CarParams]:
+    """A job folder's key track, its label, the trace and time of its best clean test lap, and
+    the car it drove (the bots and the profile must be of that car to be its yardstick)."""
     folder = JobFolder(job)
     spec = RunSpec.from_json(folder.config(), job)
     track = spec.key_track
+    car = spec.env.car_params()
     label = f"{Path(job).resolve().parent.name}/{Path(job).resolve().name}"
     frame = folder.trace(track)
     if frame is None or frame.empty:
-        return track, label, None, math.nan
+        return track, label, None, math.nan, car
     trace = {c: frame[c].to_numpy(float) for c in frame.columns}
-    return track, label, trace, float(trace["time_s"].max())
+    return track, label, trace, float(trace["time_s"].max()), car
 
 
-def bot_lap(track: Track, line: str, laps: int = 3) -> tuple[dict[str, np.ndarray] | None, float]:
+def bot_lap(track: Track, line: str, car: CarParams,
+            laps: int = 3) -> tuple[dict[str, np.ndarray] | None, float]:  # fmt: skip
     """The follower's best clean lap on ``line`` (a flying lap: the first starts from rest)."""
-    report = bot_report(track, line, laps=laps)
+    report = bot_report(track, line, laps=laps, car=car)
     best = float(report["best_lap_s"])
     if not math.isfinite(best):
         return None, math.nan
@@ -128,17 +132,21 @@ def main() -> None:
     ap.add_argument("--plot", default=None, metavar="FILE", help="figure: FILE.png and FILE.pdf")
     args = ap.parse_args()  # fmt: skip
     laps = [run_lap(job) for job in args.jobs]
-    names = {t for t, _, _, _ in laps} | ({args.track} if args.track else set())
+    names = {t for t, _, _, _, _ in laps} | ({args.track} if args.track else set())
     if not names:
         names = {"oval"}  # `make bench` runs it bare: the followers against the limit
     if len(names) != 1:
         sys.exit(f"lap_loss: give jobs of one track, or --track (got {sorted(names)})")
+    cars = {car.fingerprint(): car for *_, car in laps} or {"default": CarParams()}
+    if len(cars) != 1:
+        sys.exit("lap_loss: give jobs of one car (their env's car settings differ)")
+    car = next(iter(cars.values()))
     track = load_track(names.pop())
-    profile = speed_profile(track, reference_offsets(track, check_kind(args.profile)))
+    profile = speed_profile(track, reference_offsets(track, check_kind(args.profile), car), car)
     sectors = track_sectors(track, args.bin_m)
-    entries = [(label, trace, lap) for _, label, trace, lap in laps]
+    entries = [(label, trace, lap) for _, label, trace, lap, _ in laps]
     for line in [b for b in args.bots.split(",") if b]:
-        trace, lap = bot_lap(track, check_kind(line))
+        trace, lap = bot_lap(track, check_kind(line), car)
         entries.append((f"follower {line}", trace, lap))
     drivers: list[dict[str, Any]] = []
     for name, trace, lap in entries:

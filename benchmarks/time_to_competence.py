@@ -260,18 +260,22 @@ def goal_flags(track: str, summary: Mapping[str, Any],
 
 
 # --- what is measured before the clock (parent) ----------------------------------------------
-def bot_figures(track_name: str) -> dict[str, float]:
-    """The follower's best lap on the centre and on the min-curvature line, and the limit."""
+def bot_figures(track_name: str, car_overrides: dict[str, Any] | None = None) -> dict[str, float]:
+    """The follower's best lap on the centre and on the min-curvature line, and the limit, for
+    the runs' own car (``--env-set car=...``): a bot in another car is no anchor."""
     from formula_tourney.bots.follower import drive
     from formula_tourney.bots.reference import reference_offsets
     from formula_tourney.lines.limit import reference_limit_s
+    from formula_tourney.sim.car_params import CarParams
     from formula_tourney.sim.catalog import load_track
 
     track = load_track(track_name)
-    laps = {kind: float(drive(track, reference_offsets(track, kind), laps=2)["best_lap_s"])
+    car = CarParams(**(car_overrides or {}))
+    laps = {kind: float(drive(track, reference_offsets(track, kind, car), laps=2,
+                              car=car)["best_lap_s"])
             for kind in ("centre", "mincurv")}  # fmt: skip
     return {"centre_s": laps["centre"], "mincurv_s": laps["mincurv"],
-            "reference_limit_s": float(reference_limit_s(track))}  # fmt: skip
+            "reference_limit_s": float(reference_limit_s(track, car))}  # fmt: skip
 
 
 def _warm_up(spec: Any) -> Any:
@@ -659,9 +663,14 @@ def main() -> None:
     schedule_overrides = parse_overrides(args.schedule_set)
 
     from formula_tourney.errors import UserInputError
+    from formula_tourney.sim.config import EnvSettings
     from formula_tourney.training.spec import build_run_spec
 
-    bots = bot_figures(args.track)
+    try:
+        car_overrides = EnvSettings.model_validate(env_overrides).car
+    except ValueError as err:
+        raise SystemExit(f"--env-set: {err}") from None
+    bots = bot_figures(args.track, car_overrides)
     print(f"follower on {args.track}: centre {bots['centre_s']:.3f} s, mincurv "
           f"{bots['mincurv_s']:.3f} s; reference limit {bots['reference_limit_s']:.3f} s",
           file=sys.stderr)  # fmt: skip

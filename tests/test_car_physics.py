@@ -7,10 +7,12 @@ import math
 import numpy as np
 import pytest
 
+from formula_tourney.bots.baselines import bot_report
 from formula_tourney.errors import UserInputError
 from formula_tourney.sim import kernels as K
 from formula_tourney.sim.car import CarBatch, car_from_overrides, gear_for_speed
 from formula_tourney.sim.car_params import GRAVITY_MPS2, CarParams
+from formula_tourney.sim.catalog import load_track
 
 CAR = CarParams()
 
@@ -141,3 +143,17 @@ def test_bad_car_overrides_are_user_errors():
         car_from_overrides({"wings": 2})
     with pytest.raises(UserInputError):
         CarBatch(0)
+
+
+def test_the_gearbox_not_the_driving_holds_the_oval_follower_off_the_limit() -> None:
+    """The limit takes the best gear at every speed; the default gearbox shifts down only below
+    4 000 rpm and stays in 6th through the oval's R250 arcs. A shift-down point above 6 680 rpm
+    keeps the lowest gear under 8 000 rpm, and the same follower on the same line is 0.64 s
+    faster while the limit stays put (benchmarks/gearbox_limit.py measures it per track)."""
+    track = load_track("oval")
+    default = bot_report(track, "mincurv", laps=2)
+    power_band = bot_report(track, "mincurv", laps=2, car=CarParams(downshift_rpm=7000.0))
+    assert default["best_lap_s"] == pytest.approx(34.735, abs=0.01)
+    assert power_band["best_lap_s"] == pytest.approx(34.096, abs=0.01)
+    assert power_band["reference_limit_s"] == pytest.approx(default["reference_limit_s"])
+    assert power_band["best_lap_s"] / power_band["reference_limit_s"] < 1.01

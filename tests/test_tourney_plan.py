@@ -12,7 +12,10 @@ import pytest
 
 from formula_tourney.cli import main
 from formula_tourney.errors import UserInputError
+from formula_tourney.results.folder import BaselineFolder
 from formula_tourney.tourney.api import plan_tournament, run_tournament
+from formula_tourney.tourney.jobs import Job
+from formula_tourney.tourney.runner import run_job
 from formula_tourney.training.spec import RunSpec
 
 REPO = Path(__file__).resolve().parents[1]
@@ -226,3 +229,32 @@ def test_the_demo_trains_each_job_on_its_declared_budget(tmp_path: Path) -> None
     assert {(s.preset, s.schedule.test_starts, s.schedule.test_every_episodes) for s in technical} \
         == {("tuned-bc", 3, 5)}
     assert {(s.demos.laps, s.demos.bc_weight) for s in technical} == {(10, 0.2)}  # the preset's
+
+
+def test_baselines_drive_the_parts_car_and_a_changed_car_drives_again(tmp_path: Path) -> None:
+    """A bot row is an anchor only in the entrants' car: the part's ``env_overrides.car`` goes
+    into the baseline job (and its hash), the follower drives it, and a folder holding the drive
+    of another car is driven anew rather than reported."""
+    baselines = 'baselines = [{ bot = "follower", reference = "centre", laps = 2 }]'
+    path = write(tmp_path, env="{ car = { mu = 1.4 } }", p2=baselines)
+    _planner, planned, _root = plan_tournament(path, tmp_path / "res")
+    job = planned[1].baselines[0]
+    assert job.spec["car"] == {"mu": 1.4}
+    (tmp_path / "default").mkdir()
+    default_path = write(tmp_path / "default", p2=baselines)
+    _p, default_planned, _r = plan_tournament(default_path, tmp_path / "res-default")
+    default_job = default_planned[1].baselines[0]
+    assert default_job.spec["car"] == {} and default_job.config_hash != job.config_hash
+
+    slippery = run_job(job)
+    assert slippery["car"] == {"mu": 1.4} and slippery["config_hash"] == job.config_hash
+    assert BaselineFolder(job.out_dir).holds(job.config_hash)
+    # the default car's drive into the same folder: the old result is not taken for it
+    moved = Job(job_id=job.job_id, kind="baseline", part=job.part, out_dir=job.out_dir,
+                spec=default_job.spec, config_hash=default_job.config_hash, meta=job.meta)
+    grippy = run_job(moved)
+    assert grippy["car"] == {} and grippy["config_hash"] == default_job.config_hash
+    # less grip: a slower lap and a slower limit (the oval follower: 35.37 s at mu 1.6)
+    assert grippy["best_lap_s"] == pytest.approx(35.37, abs=0.05)
+    assert slippery["best_lap_s"] > grippy["best_lap_s"] + 0.5
+    assert slippery["reference_limit_s"] > grippy["reference_limit_s"]

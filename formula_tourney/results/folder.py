@@ -257,6 +257,11 @@ class BaselineFolder:
     def write_trace(self, trace: pd.DataFrame) -> Path:
         return atomic_write_parquet(self.trace_path, trace)
 
+    def holds(self, config_hash: str) -> bool:
+        """Whether the folder holds a finished drive of these settings (the bot's car, laps):
+        a drive of other settings, or one from before drives carried a hash, is driven anew."""
+        return self.is_finished() and self.result().get("config_hash") == config_hash
+
     def result(self) -> dict[str, Any]:
         data = read_json_file(self.result_path, "the baseline's result.json")
         if not isinstance(data, dict):

@@ -12,6 +12,8 @@ are: at once for declared entrants, after promotion for ``promoted_from`` parts.
 
 from __future__ import annotations
 
+import hashlib
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -109,6 +111,12 @@ def spec_settings(settings: dict[str, Any], force_checkpoints: bool = False) -> 
         if settings.get(key) is not None:
             out[key] = settings[key]
     return out
+
+
+def baseline_digest(spec: dict[str, Any]) -> str:
+    """A baseline job's settings as a hash: a results folder holding the bot's drive in
+    another car (or for other laps) is refused on resume, as a train job of other settings is."""
+    return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:16]
 
 
 class Planner:
@@ -225,15 +233,19 @@ class Planner:
         """One drive per baseline x test track of the part."""
         part = self.spec.parts[index]
         _trains, tests = self.tracks(index)
+        # The bots drive the part's car: a bot in another car than the entrants' is no anchor.
+        env = self.spec.settings(part)["env_overrides"]
+        car = dict(env.car) if env is not None else {}
         out = []
         for baseline in part.baselines:
             reference = "genetic" if baseline.bot == "genetic" else baseline.reference
             for track in tests:
                 rel = baseline_rel_path(part.name, baseline.bot, reference, track)
+                spec = {"bot": baseline.bot, "reference": reference, "track": track,
+                        "laps": baseline.laps, "car": car}
                 out.append(Job(
                     job_id=rel, kind="baseline", part=part.name, out_dir=str(self.root / rel),
-                    spec={"bot": baseline.bot, "reference": reference, "track": track,
-                          "laps": baseline.laps},
+                    spec=spec, config_hash=baseline_digest(spec),
                     meta={"part": part.name, "bot": baseline.bot, "reference": reference,
                           "track": track, "path": rel},
                     position=index,

@@ -23,6 +23,7 @@ from typing import Any
 import pandas as pd
 
 from formula_tourney.results.folder import BaselineFolder, JobFolder
+from formula_tourney.sim.car_params import CarParams
 from formula_tourney.sim.catalog import load_track
 from formula_tourney.tourney.jobs import Job
 from formula_tourney.training.spec import RunSpec
@@ -100,14 +101,15 @@ def _run_baseline(job: Job, progress: Progress | None) -> dict[str, Any]:
     from formula_tourney.bots.baselines import bot_report
 
     folder = BaselineFolder(job.out_dir)
-    if folder.is_finished():
+    if folder.holds(job.config_hash):
         return folder.result()
     _fresh_dir(folder.path)
     task = job.spec
     started = time.perf_counter()
     if progress:
         progress({"episode": 0, "episodes": 2, "best_lap_s": math.nan, "env_steps": 0})
-    report = bot_report(load_track(task["track"]), task["reference"], laps=int(task["laps"]))
+    report = bot_report(load_track(task["track"]), task["reference"], laps=int(task["laps"]),
+                        car=CarParams(**task.get("car", {})))
     trace = report.get("_trace")
     if trace is not None:
         folder.write_trace(trace if isinstance(trace, pd.DataFrame) else pd.DataFrame(trace))
@@ -118,6 +120,7 @@ def _run_baseline(job: Job, progress: Progress | None) -> dict[str, Any]:
         "damage": _float(report.get("damage")), "finished": bool(report.get("finished")),
         "reference_limit_s": _float(report.get("reference_limit_s")),
         "seconds": time.perf_counter() - started,
+        "car": dict(task.get("car", {})), "config_hash": job.config_hash,
     }  # fmt: skip
     folder.write_result(result)
     if progress:

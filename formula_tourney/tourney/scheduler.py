@@ -17,7 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from formula_tourney.results.folder import CorruptResultError
+from formula_tourney.results.folder import BaselineFolder, CorruptResultError
 from formula_tourney.tourney.executors import Event, Executor
 from formula_tourney.tourney.jobs import Job
 from formula_tourney.tourney.outcomes import baseline_result, general_pick, job_metrics
@@ -187,7 +187,8 @@ class Scheduler:
                      for r in store.baseline_rows(part.name)}  # fmt: skip
         for job in state.baselines.values():
             key = (job.meta["bot"], job.meta["track"], job.meta["reference"])
-            if base_rows.get(key, {}).get("status") != "done":
+            if (base_rows.get(key, {}).get("status") != "done"
+                    or not BaselineFolder(job.out_dir).holds(job.config_hash)):
                 self.queue.append(job)
         self.queue.sort(key=lambda j: (j.position, j.kind != "train"))
 
