@@ -405,6 +405,8 @@ class _Greedy:
         action, _ = self.model.predict(window[-1], deterministic=True)
         return action
 
+    act_eval = act  # tests drive ``act_eval`` (our agents' averaged actor); SB3 keeps none
+
 
 def run_sb3(task: dict[str, Any]) -> dict[str, Any]:
     """SB3 SAC at its defaults on the run's env, tested as our runs are; own CPU clock."""
@@ -498,7 +500,7 @@ def run_job(task: dict[str, Any]) -> dict[str, Any]:
         traceback.print_exc()
         return {"label": task["label"], "seed": task["seed"], "error": f"{type(err).__name__}: "
                 f"{err}", "cpu_s": {n: None for n in MILESTONES}, "best_lap_s": None,
-                "best_lap_to_limit": None, "clean_start_rate": None}  # fmt: skip
+                "best_lap_to_limit": None, "clean_start_rate": None, "curve": []}  # fmt: skip
 
 
 # --- output ------------------------------------------------------------------------------------

@@ -7,8 +7,14 @@ import importlib.util
 import math
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
+from simtracks import stadium
+
+from formula_tourney.sim import kernels as K
+from formula_tourney.sim.env import FormulaRacingEnv
+from formula_tourney.training.evaluate import run_test_episode
 
 _PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "time_to_competence.py"
 _SPEC = importlib.util.spec_from_file_location("time_to_competence", _PATH)
@@ -162,3 +168,39 @@ def test_plot_curves_writes_a_png_and_a_pdf(tmp_path) -> None:
     paths = ttc.plot_curves(result, tmp_path / "curves")
     assert sorted(p.name for p in paths) == ["curves.pdf", "curves.png"]
     assert (tmp_path / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_failed_run_is_summarised_and_plotted_as_a_run_that_reached_nothing(tmp_path) -> None:
+    """A seed whose worker raised keeps the others: its record counts as misses in the medians
+    and draws nothing (it once stopped the plot, and with it the benchmark's JSON line)."""
+    failed = ttc.run_job({"kind": "ours", "label": "WIN1:tuned", "seed": 3, "spec": {}})
+    assert failed["error"].startswith("UserInputError") and failed["curve"] == []
+    assert ttc.summarise([failed])["reached_first_clean_lap"] == 0
+    curve = ttc.learning_curve(TABLE, "oval", CPU, cpu_total=99.0)
+    result = {"track": "oval", "reference": "centre", "lac": False, "seeds": [0, 3],
+              "bots": {"centre_s": 35.4, "mincurv_s": 34.7, "reference_limit_s": 33.8},
+              "entrants": [{"label": "WIN1:tuned", "runs": [{"curve": curve}, failed]}],
+              "sb3": None}  # fmt: skip
+    assert [p.name for p in ttc.plot_curves(result, tmp_path / "c")] == ["c.png", "c.pdf"]
+
+
+class _Follower:
+    """A line follower on the telemetry behind SB3's ``predict``: what the anchor's adapter
+    hands the test drive."""
+
+    def predict(self, obs, deterministic: bool = True):  # noqa: ANN001, ANN201
+        assert deterministic
+        angle = obs[K.OBS_ANGLE] * math.pi
+        steer = np.clip(-2.0 * angle - 0.6 * obs[K.OBS_TRACKPOS], -1, 1)
+        err = 24.0 - obs[K.OBS_VX] * K.SPEED_SCALE_MPS
+        return np.array([steer, np.clip(0.3 * err, 0, 1), np.clip(-0.2 * err, 0, 1)],
+                        np.float32), None
+
+
+def test_the_sb3_adapter_drives_the_tests_as_our_agents_do() -> None:
+    """The anchor is tested by the same ``run_test_episode`` as our agents, which drives
+    ``act_eval``: the adapter must offer it (it did not, and every SB3 seed failed)."""
+    env = FormulaRacingEnv(config={"track": stadium(), "max_steps": 400})
+    drive = run_test_episode(ttc._Greedy(_Follower()), env, "stadium", 1250.0, seed=0)
+    assert drive.laps >= 1 and drive.damage == 0.0
+    assert 55.0 < drive.best_lap_s < 60.0  # 1 302.65 m at ~24 m/s

@@ -166,6 +166,44 @@ def test_track_pos_weight_scales_only_the_lateral_term_and_one_is_the_papers():
     assert rewards[0.0] - rewards[1.0] == pytest.approx(vx * track_pos, rel=1e-5)
 
 
+def _one_step_off_the_centre(config: dict, s_m: float,
+                             lateral_m: float) -> tuple[float, dict, np.ndarray]:
+    """Reward, info and observation of one straight-ahead step from ``lateral_m`` left of the
+    centre at ``s_m``, at 30 m/s along the track's heading there."""
+    env = FormulaRacingEnv(config={"track": TRACK, "track_pos_weight": 0.0} | config)
+    env.reset(options={"start_s_m": s_m, "start_speed_mps": 30.0})
+    st = env._b.state[0]
+    st[K.ST_X] -= lateral_m * math.sin(st[K.ST_PSI])
+    st[K.ST_Y] += lateral_m * math.cos(st[K.ST_PSI])
+    st[K.ST_LAT] += lateral_m
+    obs, r, term, _, info = env.step(np.array([0.0, 0.5, 0.0], np.float32))
+    assert not term
+    return r, info, obs
+
+
+def test_progress_reward_pays_track_metres_and_the_inside_of_a_corner():
+    """With ``progress_reward`` the speed term is the progress along the centreline in the step
+    (m/s): on the stadium's R80 left turn a car 4 m inside earns ~10 % more than one 4 m outside
+    at the same speed (1 / (1 -+ 4/80)), where the paper's Vx (cos - |sin|) pays both alike."""
+    arc_s = 520.0  # mid first turn (400-651 m: the straights are 400 m)
+    progress = {"progress_reward": True}
+    inside, info_in, _ = _one_step_off_the_centre(progress, arc_s, 4.0)
+    outside, info_out, _ = _one_step_off_the_centre(progress, arc_s, -4.0)
+    straight, info0, _ = _one_step_off_the_centre(progress, 100.0, 0.0)
+    # a reset's distance is 0, so one step's progress is its distance_m over the 0.2 s step
+    assert straight == pytest.approx(info0["distance_m"] / 0.2, rel=1e-9)
+    assert inside / outside == pytest.approx((1 + 4 / 80) / (1 - 4 / 80), rel=0.02)
+    assert inside == pytest.approx(info_in["distance_m"] / 0.2, rel=1e-9)
+    paper_in, _, _ = _one_step_off_the_centre({}, arc_s, 4.0)
+    paper_out, _, _ = _one_step_off_the_centre({}, arc_s, -4.0)
+    assert paper_in == pytest.approx(paper_out, rel=0.01)
+    # the line term stays on top of it: w = 1 costs Vx |trackPos| as in the paper's reward
+    lined, _, obs = _one_step_off_the_centre(progress | {"track_pos_weight": 1.0}, arc_s, 4.0)
+    vx = obs[K.OBS_VX] * K.SPEED_SCALE_MPS
+    assert lined == pytest.approx(inside - vx * abs(obs[K.OBS_TRACKPOS]), rel=1e-5)
+    assert abs(obs[K.OBS_TRACKPOS]) > 0.5
+
+
 def test_backwards_slow_and_max_steps_ends():
     env = FormulaRacingEnv(config={"track": TRACK})
     env.reset(options={"start_s_m": 100.0})

@@ -18,7 +18,7 @@ from formula_tourney.results.layout import JOB_TABLES, SCHEMA_VERSION
 from formula_tourney.training import envs as run_envs
 from formula_tourney.training import loop
 from formula_tourney.training.evaluate import _lap_trace, start_positions
-from formula_tourney.training.presets import PRESETS
+from formula_tourney.training.presets import PRESETS, Preset
 from formula_tourney.training.spec import RunSpec, build_run_spec
 
 SCHEDULE = dict(
@@ -307,6 +307,20 @@ def test_track_pos_weight_is_labelled_and_left_out_of_config_at_the_papers_one(
                        env_overrides={"track_pos_weight": -1.0})
 
 
+def test_progress_reward_is_labelled_and_left_out_of_config_when_off(ring_tracks) -> None:
+    """The progress reward is beyond the paper: named in every table when on, and absent from
+    the spec's JSON (config.json, the digest) when off, as before the setting existed."""
+    paper = build_run_spec(variant="WIN1", train_tracks=["ringA"])
+    off = build_run_spec(variant="WIN1", train_tracks=["ringA"],
+                         env_overrides={"progress_reward": False})
+    assert "progress_reward" not in paper.to_json()["env"] and off.digest() == paper.digest()
+    on = build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="tuned",
+                        env_overrides={"progress_reward": True, "track_pos_weight": 0.3})
+    assert on.beyond_paper() == ["preset tuned", "track_pos_weight 0.3", "progress_reward"]
+    assert on.to_json()["env"]["progress_reward"] is True and on.digest() != paper.digest()
+    assert RunSpec.from_json(on.to_json(), "round trip") == on
+
+
 def test_a_beyond_paper_setting_is_labelled_where_it_differs_from_its_preset(ring_tracks) -> None:
     """`tuned`'s own brake hold is named by "preset tuned"; a user's change on top of a preset,
     or on the paper's variant, is named by itself."""
@@ -433,3 +447,41 @@ def test_tuned_bc_ema_changes_only_the_ddpg_family(ring_tracks) -> None:
                           overrides={"eval_ema_updates": 1000})  # fmt: skip
     assert user.agent.eval_ema_updates == 1000
     assert "eval_ema_updates 1000" in user.beyond_paper()
+
+
+def test_tuned_progress_changes_the_reward_for_all_and_the_ddpg_familys_update(
+        ring_tracks) -> None:
+    """`tuned-progress` is `tuned` with the progress reward (line term 0.3) for every family
+    and, for the WIN variants alone (the family it was measured on), twice `tuned`'s learning
+    rates and tests on a 3 000-update average of the actor. A user's env override wins over the
+    preset's, key by key, and is named."""
+    for variant in ("WIN1", "WIN4"):
+        tuned = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned")
+        progress = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned-progress")
+        changed = {k: v for k, v in progress.agent.model_dump().items()
+                   if v != getattr(tuned.agent, k)}  # fmt: skip
+        assert changed == {"actor_lr": 7.4e-4, "critic_lr": 1.5e-3, "eval_ema_updates": 3000}
+        assert progress.beyond_paper() == ["preset tuned-progress"]
+        assert RunSpec.from_json(progress.to_json(), "round trip") == progress
+    for variant in ("PER1M", "MS3", "LSTM4", "TD3", "SAC"):
+        tuned = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned")
+        progress = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned-progress")
+        assert progress.agent == tuned.agent, variant
+        env_changed = {k: v for k, v in progress.env.model_dump().items()
+                       if v != getattr(tuned.env, k)}  # fmt: skip
+        assert env_changed == {"progress_reward": True, "track_pos_weight": 0.3}, variant
+    mine = build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="tuned-progress",
+                          env_overrides={"track_pos_weight": 1.0, "slow_penalty": 50.0})
+    assert (mine.env.progress_reward, mine.env.track_pos_weight, mine.env.slow_penalty) \
+        == (True, 1.0, 50.0)
+    assert mine.beyond_paper() == ["preset tuned-progress", "track_pos_weight 1"]
+
+
+def test_a_preset_may_set_env_keys_but_not_the_car() -> None:
+    """A preset's env keys are checked when it is declared; the car is refused, since the bots
+    beside every entrant drive the run's car and a preset is a recipe, not another car."""
+    Preset(name="x", description="ok", env={"slow_penalty": 10.0})
+    with pytest.raises(ValueError, match="may not change the car"):
+        Preset(name="x", description="car", env={"car": {"mu": 1.4}})
+    with pytest.raises(UserInputError, match="unknown config key 'rewards'"):
+        Preset(name="x", description="typo", env={"rewards": 1})

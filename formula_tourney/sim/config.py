@@ -132,6 +132,14 @@ class EnvSettings(BaseModel):
         "for staying on the reference line, which caps its lap at that line's limit; below 1 "
         "(beyond the paper) the car may take its own line across the track.",
     )
+    progress_reward: Boolean = Field(
+        False,
+        description="Beyond the paper: the reward's speed term is the car's progress along the "
+        "track (metres of centreline per second, what a lap time counts) instead of the paper's "
+        "Vx (cos(theta) - |sin(theta)|) along the reference line, which pays only for speed "
+        "along that line and so for a longer way round a corner as much as a shorter one. The "
+        "line term -Vx w |trackPos| and the damage term stay.",
+    )
     start_speed_mps: Real = Field(
         0.0, ge=0.0, le=100.0, description="Speed at reset along the reference line."
     )

@@ -104,6 +104,7 @@ class _Batch:
         c[K.C_DMG_W] = cfg.damage_weight
         c[K.C_SLOW_PEN] = cfg.slow_penalty
         c[K.C_TRACKPOS_W] = cfg.track_pos_weight
+        c[K.C_PROGRESS] = 1.0 if cfg.progress_reward else 0.0
         c[K.C_LAC] = 1.0 if self.lac else 0.0
         c[K.C_LENGTH] = self.track.length_m
         self.geom = track_geometry(self.track, self.reference, cfg.grip_scale,
@@ -363,7 +364,9 @@ class FormulaRacingEnv(gymnasium.Env):
     ## Rewards
     Per step `Vx * (cos(theta) - |sin(theta)| - w |trackPos|)` with `Vx` in m/s, `theta` the
     angle to the reference line and `w` = `track_pos_weight` (the paper's 1), minus
-    `damage_weight` times the damage added in the step.
+    `damage_weight` times the damage added in the step. With `progress_reward` (beyond the
+    paper) the speed term `Vx * (cos(theta) - |sin(theta)|)` is replaced by the step's progress
+    along the track in m/s (what a lap time counts; the inside of a corner earns more).
     A step that ends the episode off track or backwards gives -1; a slow end `-slow_penalty`.
 
     ## Starting State

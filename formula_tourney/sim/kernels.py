@@ -186,7 +186,8 @@ C_ELEV = 13  # 1 when the track has heights or banking (the ``elev`` block is re
 C_DRY_M = 14  # drying track: distance (m) over which the grip dries; 0 = no drying
 C_DRY_DELTA0 = 15  # drying track: ``ST_GRIP_DELTA`` at distance 0 (rises linearly to 0)
 C_TRACKPOS_W = 16  # weight of the reward's ``-Vx |trackPos|`` term (the paper: 1)
-N_CFG = 17
+C_PROGRESS = 17  # 1: the reward's speed term is the progress along the track (beyond the paper)
+N_CFG = 18
 
 # --- per-step outputs --------------------------------------------------------------------------
 O_REWARD = 0
@@ -1060,9 +1061,14 @@ def score_step(st: np.ndarray, o: np.ndarray, obs_row: np.ndarray, dist0: float,
     vx = st[ST_VX]
     track_pos = obs_row[OBS_TRACKPOS]
     lateral = cfg[C_TRACKPOS_W] * abs(track_pos)
-    reward = vx * (math.cos(angle) - abs(math.sin(angle)) - lateral)
-    reward -= cfg[C_DMG_W] * o[O_DMG_INC]
     progress_mps = (st[ST_DIST] - dist0) / cfg[C_DT]
+    if cfg[C_PROGRESS] > 0.5:
+        # metres of track per second, what a lap time counts: a shorter line through a corner
+        # earns more, where the paper's Vx cos(theta) pays only for speed along the line
+        reward = progress_mps - vx * lateral
+    else:
+        reward = vx * (math.cos(angle) - abs(math.sin(angle)) - lateral)
+    reward -= cfg[C_DMG_W] * o[O_DMG_INC]
     if progress_mps < cfg[C_SLOW_MPS]:
         st[ST_SLOW] += 1.0
     else:

@@ -11,10 +11,9 @@ the env's settings (``sim.config.EnvSettings``), the reference line and LAC, the
 (:class:`DemoSettings`). Keys an env override would share with the run (``lac``, ``max_steps``,
 ...) are not env settings at all, so setup and override can never both set one.
 
-Settings added after results layout 2 (``schedule.cars``, ``schedule.env_steps``,
-``schedule.test_grip_scales``, ``schedule.traffic_bots``, ``demos``, the agent's
-``crash_penalty``, ``epsilon_floor`` and ``eval_ema_updates``, the env's ``grip_scale_range``,
-``grip_drying`` and ``track_pos_weight``) are left out of :meth:`RunSpec.to_json` while at their
+Settings added after results layout 2 (:data:`NEWER_THAN_LAYOUT_2`: ``schedule.cars``,
+``schedule.env_steps``, ``demos``, the agent's ``crash_penalty``, the env's
+``progress_reward`` and others) are left out of :meth:`RunSpec.to_json` while at their
 defaults: a default run's ``config.json``, checkpoints and :meth:`RunSpec.digest` are byte for
 byte what they were before those settings existed, so a resumed tournament still recognises its
 finished jobs.
@@ -273,11 +272,12 @@ class RunSpec(_Frozen):
         """``KEY VALUE`` for each of :data:`BEYOND_PAPER_SETTINGS` that differs from what the
         run's preset gives (its value, else the paper's default): a preset's own choices are
         named by "preset NAME", a user's change on top of it is named here."""
-        preset_agent = get_preset(self.preset).agent_overrides(
-            self.agent.family, named_settings(self.variant))
-        base = {"agent": {**_DEFAULTS["agent"], **preset_agent}, "env": _DEFAULTS["env"]}
+        preset = get_preset(self.preset)
+        preset_agent = preset.agent_overrides(self.agent.family, named_settings(self.variant))
+        base = {"agent": {**_DEFAULTS["agent"], **preset_agent},
+                "env": {**_DEFAULTS["env"], **preset.env}}
         sections = {"agent": self.agent, "env": self.env}
-        return [f"{key} {getattr(sections[section], key):g}"
+        return [_setting_label(key, getattr(sections[section], key))
                 for section, keys in BEYOND_PAPER_SETTINGS.items() for key in keys
                 if getattr(sections[section], key) != base[section][key]]  # fmt: skip
 
@@ -316,6 +316,13 @@ class RunSpec(_Frozen):
             raise UserInputError(f"{source}: not a run specification: {_problems(err)}") from None
 
 
+def _setting_label(key: str, value: Any) -> str:
+    """``KEY VALUE`` for a number, ``KEY`` for a switch that is on, ``no KEY`` for one off."""
+    if isinstance(value, bool):
+        return key if value else f"no {key}"
+    return f"{key} {value:g}"
+
+
 def _problems(err: ValidationError) -> str:
     return "; ".join(
         f"{'.'.join(str(p) for p in e['loc']) or 'value'}: {e['msg']}" for e in err.errors()
@@ -324,7 +331,7 @@ def _problems(err: ValidationError) -> str:
 
 NEWER_THAN_LAYOUT_2: dict[str, tuple[str, ...]] = {
     "agent": ("crash_penalty", "epsilon_floor", "eval_ema_updates"),
-    "env": ("grip_scale_range", "grip_drying", "track_pos_weight"),
+    "env": ("grip_scale_range", "grip_drying", "track_pos_weight", "progress_reward"),
     "schedule": ("cars", "env_steps", "traffic_bots", "test_grip_scales"),
     "demos": ("bc_weight", "bc_q_filter"),  # newer than the demonstrations themselves
 }
@@ -332,7 +339,7 @@ NEWER_THAN_LAYOUT_2: dict[str, tuple[str, ...]] = {
 
 BEYOND_PAPER_SETTINGS: dict[str, tuple[str, ...]] = {
     "agent": ("crash_penalty", "epsilon_floor", "eval_ema_updates", "brake_explore_hold_steps"),
-    "env": ("track_pos_weight",),
+    "env": ("track_pos_weight", "progress_reward"),
 }
 """Settings of mechanisms the paper does not have: off their preset's value, a run says so."""
 
@@ -379,7 +386,7 @@ def build_run_spec(
     schedule = {**chosen.schedule, **dict(schedule or {})}
     if chosen.demos is not None and not isinstance(demos, DemoSettings):
         demos = {**chosen.demos, **dict(demos or {})}  # the caller's keys win, one by one
-    env = _env_settings(env_overrides, source)
+    env = _env_settings(env_overrides, source, chosen.env)
     unknown = sorted(set(schedule or {}) - set(SCHEDULE_KEYS))
     if unknown:
         raise UserInputError(
@@ -400,11 +407,17 @@ def build_run_spec(
         raise UserInputError(f"{source}: {_problems(err)}") from None
 
 
-def _env_settings(overrides: Mapping[str, Any] | EnvSettings | None, source: str) -> EnvSettings:
+def _env_settings(overrides: Mapping[str, Any] | EnvSettings | None, source: str,
+                  preset_env: Mapping[str, Any] | None = None) -> EnvSettings:
+    """The run's env settings: the preset's env keys under the user's overrides (the keys a
+    user set win, one by one, as for agent settings)."""
     if isinstance(overrides, EnvSettings):
-        return overrides
+        if not preset_env:
+            return overrides
+        overrides = {k: getattr(overrides, k) for k in overrides.model_fields_set}
     owned = sorted(set(overrides or {}) & set(RUN_OWNED_KEYS))
     if owned:
         where = "; ".join(f"'{k}' is set by {RUN_OWNED_HINTS[k]}" for k in owned)
         raise UserInputError(f"{source}: env override(s) of run settings: {where}")
-    return EnvSettings.parse(overrides, f"{source}: env overrides")
+    return EnvSettings.parse({**dict(preset_env or {}), **dict(overrides or {})},
+                             f"{source}: env overrides")
