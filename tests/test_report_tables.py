@@ -226,6 +226,29 @@ def test_terminal_table_never_cuts_numbers_on_a_narrow_console(
     assert "27.10" in text  # win1's bLT on the oval, computed by hand above
 
 
+def test_terminal_table_keeps_every_column_beside_a_long_label(
+    built: dict[str, ReportTable],
+) -> None:
+    """A run's "beyond paper" label can be 65 characters (`make demo`'s technical part): on a
+    piped, 80-column console its lap columns were squeezed to zero width, numbers and all."""
+    import copy
+
+    from rich.console import Console
+
+    table = copy.deepcopy(built["table1"])
+    for row in table.rows:
+        if row["label"] == "win4":
+            row["label"] = "WIN4 (beyond paper: preset tuned-bc, demos (follower on mincurv))"
+    console = Console(width=80, record=True, color_system=None)
+    render.render_rich(table, console)
+    lines = console.export_text().splitlines()
+    rows = [line for line in lines if "WIN4 (beyond paper" in line]
+    assert any("27.07" in r and "27.17" in r and "[27.07, 27.27]" in r for r in rows)  # oval
+    assert any("74.27" in r and "74.37" in r and "[74.27, 74.47]" in r for r in rows)  # technical
+    for line in lines:  # a column squeezed to nothing shows as two borders side by side
+        assert "││" not in line and "┃┃" not in line, line
+
+
 def test_runs_beyond_the_paper_are_labelled_in_every_table(tmp_path: Path) -> None:
     """A run's config.json says what it adds to the paper (another family, demos, cars); its
     row carries that label, so a replication is never mistaken for an improvement."""

@@ -44,10 +44,14 @@ def render_rich(table: ReportTable, console: Any) -> None:
             nxt = table.rows[shown[k + 1]] if k + 1 < len(shown) else None
             end = nxt is not None and (nxt["kind"] != row["kind"] or nxt["family"] != row["family"])
             rt.add_row(row["label"], *cells, end_section=end)
-        # Never cut a lap time to an ellipsis: a narrow (or piped, 80-column) console gets the
-        # table at its natural width instead.
+        # Never cut a lap time to an ellipsis, nor a column to nothing: a narrow (or piped,
+        # 80-column) console gets the table at its natural width instead. The table's own width
+        # does it; ``print(width=...)`` is capped at the console's, and a long label (a run's
+        # "beyond paper" list) then squeezed the lap columns to zero width.
         natural = sum(c.min_width or 0 for c in rt.columns) + 3 * len(rt.columns) + 1
-        console.print(rt, width=max(console.width, natural), crop=False)
+        if natural > console.width:
+            rt.width = natural
+        console.print(rt, crop=False)
     for note in table.notes:
         console.print(f"  {note}")
 
