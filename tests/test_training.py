@@ -15,6 +15,7 @@ from training_fixtures import SMALL
 from formula_tourney.agents.variants import get_variant
 from formula_tourney.errors import UserInputError
 from formula_tourney.results.layout import JOB_TABLES, SCHEMA_VERSION
+from formula_tourney.sim.config import EnvSettings
 from formula_tourney.training import envs as run_envs
 from formula_tourney.training import loop
 from formula_tourney.training.evaluate import _lap_trace, start_positions
@@ -475,6 +476,10 @@ def test_tuned_progress_changes_the_reward_for_all_and_the_ddpg_familys_update(
     assert (mine.env.progress_reward, mine.env.track_pos_weight, mine.env.slow_penalty) \
         == (True, 1.0, 50.0)
     assert mine.beyond_paper() == ["preset tuned-progress", "track_pos_weight 1"]
+    paper_reward = build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="tuned-progress",
+                                  env_overrides=EnvSettings.parse({"progress_reward": False}))
+    assert paper_reward.env.track_pos_weight == 0.3  # a tournament's parsed settings merge too
+    assert paper_reward.beyond_paper() == ["preset tuned-progress", "no progress_reward"]
 
 
 def test_a_preset_may_set_env_keys_but_not_the_car() -> None:

@@ -377,8 +377,8 @@ def build_run_spec(
     (not built) by ``sim.catalog.check_track_name``; relative file paths resolve against
     ``track_base_dir``. ``demos`` holds keys of :class:`DemoSettings` (an empty mapping takes
     its defaults; None: no demonstrations). ``preset`` (``training.presets``) supplies agent
-    overrides, schedule keys and demonstrations first; the caller's own settings win over it,
-    key by key (``demos`` too: a preset's demonstrations with one key changed).
+    overrides, schedule keys, env keys and demonstrations first; the caller's own settings win
+    over it, key by key (``demos`` and ``env_overrides`` too).
     """
     chosen = get_preset(preset)
     preset_agent = chosen.agent_overrides(get_variant(variant).family, named_settings(variant))
@@ -414,7 +414,7 @@ def _env_settings(overrides: Mapping[str, Any] | EnvSettings | None, source: str
     if isinstance(overrides, EnvSettings):
         if not preset_env:
             return overrides
-        overrides = {k: getattr(overrides, k) for k in overrides.model_fields_set}
+        overrides = overrides.overrides()  # the keys its user set, to go over the preset's
     owned = sorted(set(overrides or {}) & set(RUN_OWNED_KEYS))
     if owned:
         where = "; ".join(f"'{k}' is set by {RUN_OWNED_HINTS[k]}" for k in owned)
