@@ -7,9 +7,14 @@ is made).
 
 from __future__ import annotations
 
+from importlib.metadata import PackageNotFoundError, version
+
 import gymnasium
 
-__version__ = "0.1.0"
+try:  # one home for the version: pyproject.toml, read back from the installed metadata
+    __version__ = version("formula-tourney")
+except PackageNotFoundError:  # a source tree on sys.path without an install
+    __version__ = "0+unknown"
 
 ENV_ID = "FormulaRacing-v0"
 

@@ -12,6 +12,7 @@ import sys
 import click
 import typer
 
+from formula_tourney import __version__
 from formula_tourney.commands import (
     agents,
     demo,
@@ -39,6 +40,25 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
+
+
+
+def _print_version(value: bool) -> None:
+    """Eager ``--version``: prints before any command is parsed, then exits 0."""
+    if value:
+        typer.echo(f"formula-tourney {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(
+        False, "--version", callback=_print_version, is_eager=True,
+        help="Print the version and exit.",
+    ),  # fmt: skip
+) -> None:
+    """Options of the command itself; the work is in the subcommands."""
+
 
 for module in (demo, tracks, lines, agents, tourney, report, race, kernel_cache):
     module.register(app)
