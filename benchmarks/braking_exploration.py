@@ -1,5 +1,5 @@
 """Why the technical track is not learned: the braking a hairpin needs against what exploration
-ever produces (issue 11, item 0).
+ever produces.
 
 The follower bot laps `technical` on the min-curvature line; its trace says how long the car
 must brake before each hairpin (consecutive 200 ms steps with brake >= a threshold). The paper's

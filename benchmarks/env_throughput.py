@@ -1,12 +1,12 @@
-"""Env throughput against highway-env, in one run (issue 2, item 7).
+"""Env throughput against highway-env, in one run.
 
 Measures, with random actions and wall-clock time:
   (a) ``gymnasium.make("FormulaRacing-v0")`` with full telemetry (29 values + LAC), steps/s;
   (b) ``gymnasium.make_vec(..., num_envs=64, vectorization_mode="vector_entry_point")``,
       car-steps/s;
   (c) highway-env ``racetrack-v0`` with continuous steering+throttle, Kinematics observation and
-      no other vehicles, steps/s: the anchor (~110 steps/s on the 2-core machine of DESIGN.md).
-Prints a/c (goal >= 500) and b/c (goal >= 2000, one thread; issue 12); the last line is one
+      no other vehicles, steps/s: the anchor (110-175 steps/s on a 2-core machine, docs/results.md).
+Prints a/c (goal >= 500) and b/c (goal >= 2000, one thread); the last line is one
 JSON object.
 
     .venv/bin/python benchmarks/env_throughput.py [--seconds 5] [--track oval] [--threads 1]
@@ -28,8 +28,8 @@ import numpy as np  # noqa: E402
 import formula_tourney  # noqa: E402,F401  (registers FormulaRacing-v0)
 from formula_tourney.sim.track import Track  # noqa: E402
 
-GOAL_SINGLE = 500.0  # issue 12: the single env stays >= 500x highway-env
-GOAL_VECTOR = 2000.0  # issue 12: the 64-car vector env >= 2000x, on one thread
+GOAL_SINGLE = 500.0  # the single env stays >= 500x highway-env
+GOAL_VECTOR = 2000.0  # the 64-car vector env >= 2000x, on one thread
 HIGHWAY_CONFIG = {
     "action": {"type": "ContinuousAction", "longitudinal": True, "lateral": True},
     "observation": {"type": "Kinematics"},
@@ -130,7 +130,7 @@ def time_highway(seconds: float) -> float:
 
 RACE_CARS = 8
 GOAL_RACE = 0.5
-"""Race row (issue 14): per-car rate of an 8-car race over that of 8 independent cars."""
+"""Race row: per-car rate of an 8-car race over that of 8 independent cars."""
 
 
 def time_race(track: Track | str, seconds: float, cars: int = RACE_CARS) -> tuple[float, float]:

@@ -33,7 +33,7 @@ from formula_tourney.sim.car_params import CarParams  # noqa: E402
 from formula_tourney.sim.catalog import load_track  # noqa: E402
 
 GOALS = {"oval": 1.02, "technical": 1.05}
-"""Issue 11's best lap / limit goals, for the best bot's ratio beside them."""
+"""The best lap / limit goals of docs/agents.md, for the best bot's ratio beside them."""
 
 
 def row(track_name: str, downshift_rpm: float, lines: list[str], laps: int) -> dict[str, Any]:

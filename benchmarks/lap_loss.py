@@ -1,6 +1,6 @@
 """Where the best laps lose time against the reference limit, sector by sector, beside the bots.
 
-The best/limit goals of issue 11 (oval 1.02, technical 1.05) are missed by laps that are
+The best/limit goals (oval 1.02, technical 1.05; docs/agents.md) are missed by laps that are
 1.04-1.08 x the limit; a ratio does not say where the time goes. This reads each run's best clean
 test lap (``traces/<track>.parquet`` in the job folders a benchmark wrote with ``--out DIR``),
 drives the follower on the lines named by ``--bots`` (its best clean lap of three), and lays

@@ -1,4 +1,4 @@
-"""The follower on every track of torcs-data, in three dimensions (issue 12, "done when").
+"""The follower on every track of torcs-data, in three dimensions: every one must drive clean.
 
 For each ``<category>/<name>/<name>.xml`` under the torcs-data tracks folder: import it (heights,
 banking and surfaces included), compute its reference limit (the QSS lap on the min-curvature

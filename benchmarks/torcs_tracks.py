@@ -1,4 +1,4 @@
-"""The 38 tracks of torcs-data against TORCS' own numbers (issue 12, item 1).
+"""The 38 tracks of torcs-data against TORCS' own numbers.
 
 Imports every ``<category>/<name>/<name>.xml`` under the torcs-data tracks folder and prints a
 Markdown table (the one in docs/tracks.md): our lap length, TORCS' lap length, the difference,

@@ -1,4 +1,4 @@
-"""Physical sense of the car model, in numbers (issue 2, item 3), on an open plane."""
+"""Physical sense of the car model, in numbers, on an open plane."""
 
 from __future__ import annotations
 

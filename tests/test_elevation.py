@@ -1,4 +1,4 @@
-"""Heights and banking (issue 12, item 2): track arrays, the TOML and TORCS formats, the car on
+"""Heights and banking: track arrays, the TOML and TORCS formats, the car on
 slopes, banked turns and crests, the vertical speed, and tracks that cross on a bridge."""
 
 from __future__ import annotations

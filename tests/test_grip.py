@@ -1,4 +1,4 @@
-"""Grip as an axis (issue 12, item 4): per-episode grip, a drying track, train on one grip and
+"""Grip as an axis: per-episode grip, a drying track, train on one grip and
 test on another, and the report's lap time over the limit at each grip."""
 
 from __future__ import annotations

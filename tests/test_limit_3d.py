@@ -1,4 +1,4 @@
-"""The reference limit and the follower on 3-D tracks (issue 12, item 6): banking raises a turn's
+"""The reference limit and the follower on 3-D tracks: banking raises a turn's
 QSS limit, crests unload the car, slopes cost time uphill, grass and dirt slow the follower,
 a section's grip factor slows it too, and the follower holds a 15 deg banked oval (the
 b-speedway failure). Small self-written tracks only: torcs-data never enters the suite."""

@@ -1,5 +1,6 @@
 """Imports go downward and stay visible: ``lines`` never imports ``bots``, and ``lines``, ``bots``
-and ``report`` import formula_tourney modules at the top of the file only (DESIGN.md)."""
+and ``report`` import formula_tourney modules at the top of the file only
+(docs/ARCHITECTURE.md, "Layering")."""
 
 from __future__ import annotations
 

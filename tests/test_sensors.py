@@ -1,4 +1,4 @@
-"""Telemetry layout and values: range finders, trackPos, LAC (issue 2, item 4)."""
+"""Telemetry layout and values: range finders, trackPos, LAC."""
 
 from __future__ import annotations
 

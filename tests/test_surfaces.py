@@ -1,5 +1,5 @@
-"""Track surfaces (issue 12, item 3): TORCS surface names to friction and rolling resistance, per
-track sample for the road and the side; the env's ``grip_scale`` (item 4) on top."""
+"""Track surfaces: TORCS surface names to friction and rolling resistance, per
+track sample for the road and the side; the env's ``grip_scale`` on top."""
 
 from __future__ import annotations
 

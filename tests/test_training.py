@@ -53,7 +53,7 @@ def test_train_writes_the_job_folder_contract(tmp_path, ring_tracks) -> None:
     assert list(eps.updates) == list(expected_updates)
     assert eps.epsilon.iloc[-1] == pytest.approx(max(0.0, 1 - (eps.env_steps.iloc[-1] - 1) / 200))
     tests = pd.read_parquet(job / "tests.parquet")
-    # distance_m is part of the contract: promotion "by_distance" reads it (issue 10, item 1)
+    # distance_m is part of the contract: promotion "by_distance" reads it
     assert list(tests.columns) == [
         "episode", "env_steps", "track", "start_s_m", "finished", "best_lap_s", "laps", "damage",
         "reward", "steps", "termination", "checkpoint", "distance_m", "grip_scale",
@@ -130,7 +130,7 @@ def test_bad_input_fails_when_the_spec_is_built(ring_tracks) -> None:
 
 @pytest.mark.parametrize("key", ["lac", "max_steps", "random_start", "track", "reference_line"])
 def test_env_overrides_cannot_fight_the_run_settings(ring_tracks, key: str) -> None:
-    """Issue 10, item 2: env overrides used to win over the setup's lac and test_max_steps."""
+    """Env overrides used to win over the setup's lac and test_max_steps."""
     with pytest.raises(UserInputError, match=f"'{key}' is set by"):
         build_run_spec(variant="WIN1", train_tracks=["ringA"], env_overrides={key: True})
 
@@ -250,7 +250,7 @@ def test_best_lap_trace_and_checkpoint_follow_the_metrics_clean_lap(
 
 
 def test_run_envs_draw_the_reference_line_for_the_runs_own_car(ring_tracks, monkeypatch) -> None:
-    """Issue 10, item 2: replay computed the recorded line without the car overrides."""
+    """Replay once computed the recorded line without the car overrides."""
     seen: list[object] = []
 
     def offsets(track, kind, car=None):  # type: ignore[no-untyped-def]

@@ -1,4 +1,4 @@
-"""Many cars per learner and learning from the bots (issue 11, items 1 and 2), with numbers.
+"""Many cars per learner and learning from the bots, with numbers.
 
 N-car collection against N one-car collections transition by transition, the update-to-data
 ratio's update count, the demonstrations' share of a batch, the follower's laps in the

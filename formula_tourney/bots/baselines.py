@@ -78,7 +78,7 @@ def bot_report(track: Track, kind: str, laps: int = 2, car: CarParams | None = N
 
 
 def reference_table(tracks: list[Track], laps: int = 2, car: CarParams | None = None) -> list[dict]:
-    """One row per track: the README table of issue 3."""
+    """One row per track: the limit and each bot's best clean lap (``lines table``)."""
     car = car or CarParams()
     rows = []
     for track in tracks:

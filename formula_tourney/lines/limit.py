@@ -1,6 +1,6 @@
 """A track's reference limit: the quasi-steady-state lap time on its minimum-curvature line.
 
-Every lap-time table shows the gap to it (DESIGN.md, "Lines, limit and bots"). It lives here, above
+Every lap-time table shows the gap to it (docs/lines.md). It lives here, above
 both ``speed_profile`` (the QSS lap) and ``registry`` (the cached min-curvature line), so that
 neither of those imports the other.
 """

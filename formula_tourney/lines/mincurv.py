@@ -8,7 +8,7 @@ linearisation error (the change of the line) is small. We linearise the *whole* 
 (first and second derivatives, a Gauss-Newton step with a small damping term) instead of
 freezing the first derivatives, which converges in a handful of iterations.
 
-Measured trade-offs (DESIGN.md, issue 3): a dense QP of ~900 points solves in ~0.4 s with
+Measured trade-offs (docs/lines.md): a dense QP of ~900 points solves in ~0.4 s with
 quadprog on one thread (OSQP took ~7 s on 500 points; scipy's lsq_linear was off by metres), so
 the QP runs on every k-th track sample (spacing >= 3 m, at most ``MAX_QP_POINTS`` points). The
 fine line is then a periodic C2 spline *through the optimal points* intersected with every

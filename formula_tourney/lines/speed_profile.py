@@ -1,7 +1,7 @@
 """Quasi-steady-state (QSS) speed profile and lap time of a line for our car.
 
 Every lap-time table reads as a gap to the *reference limit*: the QSS lap on the minimum-
-curvature line (``lines.limit.reference_limit_s``; DESIGN.md, "Lines, limit and bots"). The car
+curvature line (``lines.limit.reference_limit_s``; docs/lines.md). The car
 is the simulator's own ``CarParams`` (grip, downforce, drag, rolling resistance, engine force over
 all gears, brake force), so the limit moves when the car does. Three steps, the textbook
 "forward/backward" method:

@@ -1,6 +1,6 @@
 """The grip table: lap time over the reference limit at each grip a study tested at.
 
-A study can train on one grip and test on others (``schedule.test_grip_scales``, issue 12). Lap
+A study can train on one grip and test on others (``schedule.test_grip_scales``). Lap
 times at different grips only compare through the reference limit *at that grip*, which the
 trainer computed once per job, track and grip and stored beside the tests
 (``tests.parquet`` ``reference_limit_s``); this table reads that stored number, so a figure or
@@ -61,7 +61,7 @@ def _groups(ctx: Context) -> dict[str, dict[str, Any]]:
 
 
 def grip_table(ctx: Context) -> ReportTable:
-    """Lap time / reference limit per grip (issue 12): entrants by row, one column group per
+    """Lap time / reference limit per grip: entrants by row, one column group per
     part, track, line and grip, and the limit at that grip as the last row."""
     table = ReportTable(
         key="grip", title="Lap time over the reference limit at each grip",

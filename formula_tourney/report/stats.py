@@ -66,7 +66,7 @@ def mean_ci(values: Sequence[float] | np.ndarray, confidence: float = 0.95,
 def iqm(values: Sequence[float] | np.ndarray) -> float:
     """Interquartile mean: the mean of the middle 50% of runs (Agarwal et al. 2021).
 
-    Robust to the one collapsed seed that drags a mean (DESIGN.md: runs collapse later); with
+    Robust to the one collapsed seed that drags a mean (a run's late tests can collapse); with
     fewer than 4 values nothing is trimmed and it equals the mean.
     """
     arr = _clean(values)

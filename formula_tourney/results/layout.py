@@ -82,7 +82,7 @@ ADDED_COLUMNS: dict[str, tuple[str, ...]] = {
     "tests": ("grip_scale", "reference_limit_s"),
     "laps": ("grip_scale",),
 }
-"""Columns added within layout 2 (issue 12, grip as an axis), which files written before them
+"""Columns added within layout 2 (grip as an axis), which files written before them
 lack: a test then ran at its run's env ``grip_scale``, and its reference limit was not stored
 (nan). ``results.folder.JobFolder`` fills them in when it reads such a file."""
 

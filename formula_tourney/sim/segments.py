@@ -64,7 +64,7 @@ from formula_tourney.sim.surfaces import sample_surfaces
 from formula_tourney.sim.track import LEVEL_SEPARATION_M, SAMPLE_SPACING_M, Track
 
 CLOSURE_TOLERANCE_M = 1.0
-"""A track whose end misses its start by more than this is refused (issue 2)."""
+"""A track whose end misses its start by more than this is refused: its lap would not close."""
 
 HEADING_TOLERANCE_DEG = 2.0
 """A track that returns to its start at a kink sharper than this is refused."""

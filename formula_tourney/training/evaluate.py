@@ -1,7 +1,7 @@
 """Test episodes: the greedy actor (epsilon = 0) from several starts, timed lap by lap.
 
 A single test from one start is very noisy (an actor that lapped cleanly from 4 of 5 starts spun
-from the fifth, DESIGN.md), so every test drives from ``starts`` positions spread over the lap and
+from the fifth), so every test drives from ``starts`` positions spread over the lap and
 keeps every lap: its time, its damage and whether it was clean. The best clean lap's per-step trace
 is kept for plots.
 """
