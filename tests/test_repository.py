@@ -27,8 +27,9 @@ FORBIDDEN = {
     "a path outside the repository": re.compile(r"\.\./" + "shared"),
     "a work session": re.compile(rf"\b({ORDINALS})\s+" + "session", re.I),
 }
-DATED_HEADING = re.compile(r"^#+ .*\b20[0-9]{2}-[0-9]{2}" + r"-[0-9]{2}", re.M)
-"""A Markdown heading with a date: a diary entry, which belongs in docs/lab/."""
+DATED_HEADING = re.compile(r"^#+ (?!\[[0-9.]+\] - ).*\b20[0-9]{2}-[0-9]{2}" + r"-[0-9]{2}", re.M)
+"""A Markdown heading with a date: a diary entry, which belongs in docs/lab/ (a release heading of
+the changelog, ``## [1.2.0] - <date>``, is not one)."""
 
 
 def _scanned_files() -> list[Path]:
@@ -66,7 +67,8 @@ def test_the_patterns_catch_citations_and_pass_plain_prose() -> None:
     )
     assert len(_citations(cited)) == 6
     assert len(_citations(cited, markdown=False)) == 5
-    assert _citations(f"an {issue} of the paper\nthe session of a run\n## Results\n") == []
+    plain = f"an {issue} of the paper\nthe session of a run\n## Results\n## [0.9.0] - 2026-12-06\n"
+    assert _citations(plain) == []
 
 
 def test_no_file_cites_an_issue_a_session_or_a_file_outside_the_repository() -> None:
