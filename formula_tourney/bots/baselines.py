@@ -1,8 +1,8 @@
 """The baseline numbers every lap-time table is read against, one function per CLI command.
 
 ``line_report`` (a line's geometry and QSS lap), ``bot_report`` (the follower driving a line in
-the simulator, with the gap to the track's reference limit) and ``reference_table`` (the README
-table: reference limit, follower on the centre line, follower on the min-curvature line and the
+the simulator, with the gap to the track's reference limit) and ``reference_table`` (``lines
+table``: reference limit, follower on the centre line, follower on the min-curvature line and the
 genetic bot, per track). The tourney stores ``bot_report`` rows as its baselines.
 """
 
