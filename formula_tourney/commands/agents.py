@@ -62,9 +62,8 @@ def _parse_sets(items: list[str], what: str) -> dict[str, Any]:
 
 
 def _preset_help() -> str:
-    return "Settings preset: " + "; ".join(
-        f"{name}: {p.description}" for name, p in PRESETS.items()
-    )
+    return (f"Settings preset: {', '.join(PRESETS)} (what each holds and the measurement that "
+            "chose it: formula_tourney/training/presets.py, docs/results.md).")
 
 
 def _render_result(data: dict[str, Any]) -> Any:
