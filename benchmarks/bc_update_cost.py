@@ -3,7 +3,7 @@
 
 The same agent updates on the same mixed batches (``agents.replay.DemoMix``: online rows, then
 demonstration rows) with and without the cloning term, and a second agent that keeps the
-average over 3 000 updates (``tuned-bc-ema``'s) updates on them without it, in interleaved
+average over 3 000 updates (``best-demos``'s) updates on them without it, in interleaved
 rounds in one process, one thread: the plain update is the anchor of both. Sizes are
 ``tuned-bc``'s (128-128 networks, batch 64, a quarter of it from the demonstrations).
 

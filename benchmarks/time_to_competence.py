@@ -1,7 +1,7 @@
 """Time to competence: CPU-seconds until each entrant first laps cleanly, beats the follower bot
 on the centre line and beats it on the minimum-curvature line, against Stable-Baselines3 SAC.
 
-Entrants are ``VARIANT:PRESET`` pairs (``--entrants WIN1:fast,SAC:fast``), each an ordinary
+Entrants are ``VARIANT:PRESET`` pairs (``--entrants WIN1:best,SAC:best``), each an ordinary
 ``training.loop.train`` job built by ``training.spec.build_run_spec`` (``--set KEY=VALUE`` agent
 overrides on top, for every entrant), trained on ``--track`` with ``--reference`` (and ``--lac``),
 tested greedily every 5 episodes from 3 starts. Before the clock: the follower bot's best lap on
@@ -35,7 +35,7 @@ technical (recorded + LAC): (a) <= 60 CPU-s with clean-start rate >= 2/3, (c) <=
 best lap / limit <= 1.05. A table goes to stderr; the last line of stdout is one JSON object.
 
     .venv/bin/python benchmarks/time_to_competence.py [--track oval] [--reference centre] [--lac]
-        [--entrants WIN1:fast,SAC:fast,PER1M:paper,WIN1:fast-demos] [--seeds 0,1,2,3]
+        [--entrants WIN1:best,SAC:best,PER1M:paper,WIN1:best-demos] [--seeds 0,1,2,3]
         [--jobs 2] [--budget-cpu-s 600] [--set KEY=VALUE] [--no-sb3] [--out DIR]
 """
 
@@ -64,7 +64,7 @@ from typing import Any  # noqa: E402
 TEST_EVERY = 5
 TEST_STARTS = 3
 CLEAN_STARTS = 2  # of TEST_STARTS: a round counts as a clean start when this many lap cleanly
-DEFAULT_ENTRANTS = "WIN1:fast,SAC:fast,PER1M:paper,WIN1:fast-demos"
+DEFAULT_ENTRANTS = "WIN1:best,SAC:best,PER1M:paper,WIN1:best-demos"
 MILESTONES = ("first_clean_lap", "beat_centre_bot", "beat_mincurv_bot")
 MILESTONE_LABELS = {
     "first_clean_lap": "(a) first clean lap",

@@ -139,8 +139,8 @@ def test_summary_and_goal_flags() -> None:
 
 
 def test_parse_entrants() -> None:
-    assert ttc.parse_entrants("WIN1:fast, SAC:fast,") == [("WIN1", "fast"), ("SAC", "fast")]
-    for bad in ("WIN1", "WIN1:fast,WIN1:fast", "", ":fast"):
+    assert ttc.parse_entrants("WIN1:best, SAC:best,") == [("WIN1", "best"), ("SAC", "best")]
+    for bad in ("WIN1", "WIN1:best,WIN1:best", "", ":best"):
         with pytest.raises(SystemExit):
             ttc.parse_entrants(bad)
     assert ttc.parse_overrides(["batch_size=32", "algorithm=sac"]) == {

@@ -191,3 +191,11 @@ def test_oversized_file_is_refused_before_reading(tmp_path: Path) -> None:
     with pytest.raises(SystemExit) as info:
         main(["run", str(path), "--dry-run", "--results", str(tmp_path / "results")])
     assert info.value.code == 2
+
+
+def test_a_former_preset_name_is_an_error_at_its_part_naming_the_replacement(
+        tmp_path: Path) -> None:
+    text = GOOD.replace('name = "p2"\n', 'name = "p2"\npreset = "tuned-progress"\n')
+    with pytest.raises(UserInputError, match=r"t\.toml:16: parts\[1\]: preset 'tuned-progress' "
+                                             r"is now 'best'"):
+        planner(tmp_path, text).validate()

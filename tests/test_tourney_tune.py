@@ -88,19 +88,19 @@ def test_write_best_merges_into_the_variant(tmp_path: Path) -> None:
     assert tomllib.loads(target.read_text())["variants"]["WIN4"]["overrides"]["batch_size"] == 64
 
     # parameters tuned around a preset take the preset along (tune's [train] preset)
-    write_best_params(target, "WIN4", {"actor_lr": 1e-4}, preset="fast")
-    write_best_params(target, "WIN4", {"actor_lr": 1e-4}, preset="fast-demos")
-    write_best_params(target, "WIN1", {"batch_size": 32}, preset="fast")
+    write_best_params(target, "WIN4", {"actor_lr": 1e-4}, preset="fast-small")
+    write_best_params(target, "WIN4", {"actor_lr": 1e-4}, preset="tuned-bc")
+    write_best_params(target, "WIN1", {"batch_size": 32}, preset="fast-small")
     raw = tomllib.loads(target.read_text())
-    assert raw["variants"]["WIN4"]["preset"] == "fast-demos"
+    assert raw["variants"]["WIN4"]["preset"] == "tuned-bc"
     assert raw["variants"]["WIN4"]["overrides"]["batch_size"] == 64
-    assert raw["variants"]["WIN1"] == {"preset": "fast", "overrides": {"batch_size": 32}}
+    assert raw["variants"]["WIN1"] == {"preset": "fast-small", "overrides": {"batch_size": 32}}
     sub = tmp_path / "sub.toml"
     sub.write_text(TOURNAMENT.replace('[variants.WIN4]\nfamily = "DDPG"\n',
                                       "[variants.WIN4.overrides]\ngamma = 0.98\n"))
-    write_best_params(sub, "WIN4", {"actor_lr": 1e-4}, preset="fast")
+    write_best_params(sub, "WIN4", {"actor_lr": 1e-4}, preset="fast-small")
     assert tomllib.loads(sub.read_text())["variants"]["WIN4"] == {
-        "preset": "fast", "overrides": {"gamma": 0.98, "actor_lr": 1e-4}}
+        "preset": "fast-small", "overrides": {"gamma": 0.98, "actor_lr": 1e-4}}
 
 
 def test_study_resumes_and_retries_a_killed_trial(tmp_path: Path) -> None:
@@ -315,7 +315,7 @@ def test_cpu_objective_study_around_a_preset_records_its_value(tmp_path: Path) -
     from optuna.storages.journal import JournalFileBackend
 
     path = tmp_path / "tune.toml"
-    tune = TUNE.replace("episodes = 2\n", 'episodes = 10000\npreset = "fast"\n'
+    tune = TUNE.replace("episodes = 2\n", 'episodes = 10000\npreset = "fast-small"\n'
                         "variant_overrides = { buffer_size = 5000 }\n")
     path.write_text(_with_objective('kind = "cpu_s_to_first_clean_lap"\nbudget_cpu_s = 0.5\n',
                                     tune), encoding="utf-8")
@@ -337,7 +337,7 @@ def test_cpu_objective_study_around_a_preset_records_its_value(tmp_path: Path) -
     summary = json.loads((job / "summary.json").read_text())
     assert summary["stopped_early"] and 1 <= summary["episodes"] < 10000
     config = json.loads((job / "config.json").read_text())["run_spec"]
-    assert config["preset"] == "fast" and config["agent"]["exploration_steps"] == 40_000
+    assert config["preset"] == "fast-small" and config["agent"]["exploration_steps"] == 40_000
 
 
 def test_resume_refuses_another_objective(tmp_path: Path) -> None:

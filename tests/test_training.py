@@ -344,18 +344,29 @@ def test_paper_preset_is_the_registered_variant_and_others_are_labelled(ring_tra
         spec = build_run_spec(variant=name, train_tracks=["ringA"], preset="paper")
         assert spec.agent == registered and spec.demos is None and spec.beyond_paper() == []
         assert "preset" not in spec.to_json()
-    fast = build_run_spec(variant="PER1M", train_tracks=["ringA"], preset="fast",
-                          overrides={"batch_size": 128})
-    assert (fast.agent.batch_size, fast.agent.exploration_steps) == (128, 40_000)  # user wins
+    small = build_run_spec(variant="PER1M", train_tracks=["ringA"], preset="fast-small",
+                           overrides={"batch_size": 128})
+    assert (small.agent.batch_size, small.agent.exploration_steps) == (128, 40_000)  # user wins
     # the buffer is what PER1M's name stands for: the preset's 200k leaves it alone
-    assert fast.agent.buffer_size == 1_000_000 and fast.beyond_paper() == ["preset fast"]
+    assert small.agent.buffer_size == 1_000_000 and small.beyond_paper() == ["preset fast-small"]
     assert build_run_spec(variant="WIN1", train_tracks=["ringA"],
-                          preset="fast").agent.buffer_size == 200_000  # fmt: skip
-    demos = build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="fast-demos")
-    assert demos.demos.laps == 3 and demos.demos.line == "mincurv"
+                          preset="fast-small").agent.buffer_size == 200_000  # fmt: skip
+    demos = build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="best-demos")
+    assert demos.demos.laps == 10 and demos.demos.line == "mincurv"
     assert RunSpec.from_json(demos.to_json(), "round trip") == demos
     with pytest.raises(UserInputError, match="unknown preset 'quick'; known presets: paper"):
         build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="quick")
+
+
+def test_former_preset_names_are_errors_naming_their_replacement(ring_tracks) -> None:
+    """The renamed presets say their new name, the retired ones what to use instead."""
+    for former, words in (("tuned-progress", "is now 'best'"),
+                          ("tuned-bc-ema", "is now 'best-demos'"),
+                          ("fast", "was retired: use 'best'"),
+                          ("fast-demos", "was retired: use 'best-demos'")):  # fmt: skip
+        with pytest.raises(UserInputError, match=f"^preset '{former}' {words}"):
+            build_run_spec(variant="WIN1", train_tracks=["ringA"], preset=former)
+    assert list(PRESETS) == ["paper", "best", "best-demos", "fast-small", "tuned", "tuned-bc"]
 
 
 def test_presets_never_change_what_a_variant_name_stands_for(ring_tracks) -> None:
@@ -426,60 +437,59 @@ def test_tuned_bc_is_tuned_with_cloned_demonstrations(ring_tracks) -> None:
         assert RunSpec.from_json(bc.to_json(), "round trip") == bc
 
 
-def test_tuned_bc_ema_changes_only_the_ddpg_family(ring_tracks) -> None:
-    """`tuned-bc-ema` is `tuned-bc` plus, for the WIN variants alone (the family it was measured
+def test_best_demos_changes_only_the_ddpg_family(ring_tracks) -> None:
+    """`best-demos` is `tuned-bc` plus, for the WIN variants alone (the family it was measured
     on), actor_lr 1e-4, a crash penalty of 1 000 and tests on a 3 000-update average of the
     actor; every other family trains exactly as under `tuned-bc`. The run is labelled by the
     preset, not by each setting, and a user's change on top of it is still named."""
     for variant in ("WIN1", "WIN8"):
         bc = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned-bc")
-        ema = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned-bc-ema")
+        ema = build_run_spec(variant=variant, train_tracks=["ringA"], preset="best-demos")
         changed = {k: v for k, v in ema.agent.model_dump().items()
                    if v != getattr(bc.agent, k)}  # fmt: skip
         assert changed == {"actor_lr": 1e-4, "crash_penalty": 1000.0, "eval_ema_updates": 3000}
         assert ema.demos == bc.demos
-        assert ema.beyond_paper() == ["preset tuned-bc-ema", "demos (follower on mincurv)"]
+        assert ema.beyond_paper() == ["preset best-demos", "demos (follower on mincurv)"]
         assert RunSpec.from_json(ema.to_json(), "round trip") == ema
     for variant in ("PER1M", "MS3", "LSTM4", "TD3", "SAC"):
         bc = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned-bc")
-        ema = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned-bc-ema")
+        ema = build_run_spec(variant=variant, train_tracks=["ringA"], preset="best-demos")
         assert ema.agent == bc.agent, variant
-    user = build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="tuned-bc-ema",
+    user = build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="best-demos",
                           overrides={"eval_ema_updates": 1000})  # fmt: skip
     assert user.agent.eval_ema_updates == 1000
     assert "eval_ema_updates 1000" in user.beyond_paper()
 
 
-def test_tuned_progress_changes_the_reward_for_all_and_the_ddpg_familys_update(
-        ring_tracks) -> None:
-    """`tuned-progress` is `tuned` with the progress reward (line term 0.3) for every family
+def test_best_changes_the_reward_for_all_and_the_ddpg_familys_update(ring_tracks) -> None:
+    """`best` is `tuned` with the progress reward (line term 0.3) for every family
     and, for the WIN variants alone (the family it was measured on), twice `tuned`'s learning
     rates and tests on a 3 000-update average of the actor. A user's env override wins over the
     preset's, key by key, and is named."""
     for variant in ("WIN1", "WIN4"):
         tuned = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned")
-        progress = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned-progress")
+        progress = build_run_spec(variant=variant, train_tracks=["ringA"], preset="best")
         changed = {k: v for k, v in progress.agent.model_dump().items()
                    if v != getattr(tuned.agent, k)}  # fmt: skip
         assert changed == {"actor_lr": 7.4e-4, "critic_lr": 1.5e-3, "eval_ema_updates": 3000}
-        assert progress.beyond_paper() == ["preset tuned-progress"]
+        assert progress.beyond_paper() == ["preset best"]
         assert RunSpec.from_json(progress.to_json(), "round trip") == progress
     for variant in ("PER1M", "MS3", "LSTM4", "TD3", "SAC"):
         tuned = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned")
-        progress = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned-progress")
+        progress = build_run_spec(variant=variant, train_tracks=["ringA"], preset="best")
         assert progress.agent == tuned.agent, variant
         env_changed = {k: v for k, v in progress.env.model_dump().items()
                        if v != getattr(tuned.env, k)}  # fmt: skip
         assert env_changed == {"progress_reward": True, "track_pos_weight": 0.3}, variant
-    mine = build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="tuned-progress",
+    mine = build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="best",
                           env_overrides={"track_pos_weight": 1.0, "slow_penalty": 50.0})
     assert (mine.env.progress_reward, mine.env.track_pos_weight, mine.env.slow_penalty) \
         == (True, 1.0, 50.0)
-    assert mine.beyond_paper() == ["preset tuned-progress", "track_pos_weight 1"]
-    paper_reward = build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="tuned-progress",
+    assert mine.beyond_paper() == ["preset best", "track_pos_weight 1"]
+    paper_reward = build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="best",
                                   env_overrides=EnvSettings.parse({"progress_reward": False}))
     assert paper_reward.env.track_pos_weight == 0.3  # a tournament's parsed settings merge too
-    assert paper_reward.beyond_paper() == ["preset tuned-progress", "no progress_reward"]
+    assert paper_reward.beyond_paper() == ["preset best", "no progress_reward"]
 
 
 def test_a_preset_may_set_env_keys_but_not_the_car() -> None:

@@ -11,21 +11,40 @@ from typing import Any
 
 import typer
 
+from formula_tourney.commands.model_options import (
+    chosen_values,
+    field_options,
+    with_field_options,
+)
 from formula_tourney.commands.output import emit, message
 from formula_tourney.errors import UserInputError
 from formula_tourney.training.presets import PRESETS
+from formula_tourney.training.spec import DemoSettings, RunSpec, Schedule, build_run_spec
+
+TRAIN_OPTIONS = [
+    *field_options(
+        RunSpec, "Run", skip=("agent", "env", "schedule", "demos", "preset"),
+        names={"train_tracks": "--track", "test_tracks": "--test-track"},
+        defaults={"variant": "WIN1", "train_tracks": ("oval",)},
+    ),
+    *field_options(
+        Schedule, "Schedule (unset: the preset's, else the default shown)",
+        names={"test_every_episodes": "--test-every", "test_grip_scales": "--test-grip"},
+    ),
+    *field_options(
+        DemoSettings, "Demonstrations (beyond the paper: any of these turns them on; unset: the "
+        "preset's, else the default shown)", prefix="demo-",
+        names={"batch_fraction": "--demo-fraction", "bc_steps": "--bc-steps",
+               "bc_lr": "--bc-lr", "bc_weight": "--bc-weight", "bc_q_filter": "--bc-q-filter"},
+    ),
+]  # fmt: skip
+"""``train``'s options for the settings a model owns: each field of RunSpec (its sections and
+preset aside), Schedule and DemoSettings, with the model's description and default; ``names``
+keeps the option names users already type (``--track``, ``--test-every``, ``--bc-steps``...)."""
 
 RESULT_KEYS = (
     "best_lap_s", "laps", "damage", "finished", "episodes", "env_steps", "updates", "seconds",
 )  # fmt: skip
-
-
-def _demo_options(laps: int, **given: Any) -> dict[str, Any] | None:
-    """``--demo-laps`` and the demo options given: the keys left out keep the preset's (or
-    DemoSettings' defaults), so ``--preset tuned-bc --demo-laps 5`` still clones."""
-    if laps <= 0:
-        return None
-    return {"laps": laps, **{k: v for k, v in given.items() if v is not None}}
 
 
 def _parse_sets(items: list[str], what: str) -> dict[str, Any]:
@@ -40,6 +59,11 @@ def _parse_sets(items: list[str], what: str) -> dict[str, Any]:
         except json.JSONDecodeError:
             out[key.strip()] = raw
     return out
+
+
+def _preset_help() -> str:
+    return (f"Settings preset: {', '.join(PRESETS)} (what each holds and the measurement that "
+            "chose it: formula_tourney/training/presets.py, docs/results.md).")
 
 
 def _render_result(data: dict[str, Any]) -> Any:
@@ -62,87 +86,30 @@ def _render_result(data: dict[str, Any]) -> Any:
 def register(app: typer.Typer) -> None:
     """Add this area's commands to the main app."""
 
-    @app.command("train")
     def train_cmd(
+        ctx: typer.Context,
         out: Path = typer.Option(..., "--out", help="Job folder to write (must not be finished)."),
-        variant: str = typer.Option("WIN1", help="Variant: WIN1/4/8, LSTM4/8, MS2/3/4, PER40k/1M."),
-        track: list[str] = typer.Option(  # noqa: B006
-            ["oval"], "--track", help="Training track; repeat to train on several."
-        ),
-        reference: str = typer.Option("centre", help="Reference line: centre|recorded|mincurv."),
-        lac: bool = typer.Option(False, "--lac", help="Add look-ahead curvature to observations."),
-        episodes: int = typer.Option(100, help="Training episodes."),
-        env_steps: int = typer.Option(
-            None, help="Env-step budget: also stop at the first episode end at or after it."
-        ),
-        seed: int = typer.Option(0, help="Random seed."),
-        max_steps: int = typer.Option(1000, help="Control steps per training episode."),
-        test_every: int = typer.Option(10, help="Test every N episodes (and at the end)."),
-        test_track: list[str] = typer.Option(  # noqa: B006
-            [], "--test-track", help="Test track (repeatable); default: the training tracks."
-        ),
-        test_starts: int = typer.Option(3, help="Start positions per test."),
-        test_max_steps: int = typer.Option(1500, help="Control steps per test episode."),
-        test_grip: list[float] = typer.Option(  # noqa: B006
-            [], "--test-grip", help="Also test at this grip scale (repeatable): train on one "
-            "grip (--env-set grip_scale=...), test on another."
-        ),
-        device: str = typer.Option("auto", help="auto|cpu|cuda."),
-        threads: int = typer.Option(1, help="torch threads."),
         set_: list[str] = typer.Option(  # noqa: B006
             [], "--set", help="Variant hyperparameter override key=value (repeatable)."
         ),
         env_set: list[str] = typer.Option(  # noqa: B006
             [], "--env-set", help="FormulaRacing-v0 config override key=value (repeatable)."
         ),
-        preset: str = typer.Option(
-            "paper", help=f"Settings preset: paper (the paper's) or one beyond it: "
-            f"{', '.join(p for p in PRESETS if p != 'paper')}."
-        ),
-        cars: int = typer.Option(1, help="Cars driving into the one replay buffer."),
-        traffic_bots: int = typer.Option(
-            0, "--traffic-bots", help="Follower bots around the learner in every training "
-            "episode (opponent sensors added; beyond the paper; docs/races.md)."
-        ),
-        demo_laps: int = typer.Option(
-            0, "--demo-laps", help="Follower laps per train track seeding a demonstration buffer "
-            "(0: no demonstrations; beyond the paper)."
-        ),
-        demo_line: str = typer.Option(
-            None, help="Line the demonstrating follower drives (default: the preset's, else "
-            "mincurv)."
-        ),
-        demo_fraction: float = typer.Option(
-            None, help="Share of each batch from the demos (default: the preset's, else 0.5)."
-        ),
-        bc_steps: int = typer.Option(
-            None, help="Behaviour-cloning warm-start steps (with demos; default: the preset's, "
-            "else 0)."
-        ),
-        bc_weight: float = typer.Option(
-            None, help="Behaviour cloning in the actor's loss all run long, Q-filtered (with "
-            "demos; default: the preset's, else 0 = off; docs/agents.md)."
-        ),
+        preset: str = typer.Option("paper", help=_preset_help()),
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
+        **values: Any,
     ) -> None:
         """Train one DDPG variant and write its job folder (docs/CONTRACTS.md layout)."""
         # heavy (torch, numba) imports stay inside the command so that --help is instant
         from formula_tourney.results.folder import JobFolder
         from formula_tourney.training.loop import train
-        from formula_tourney.training.spec import build_run_spec
 
+        demos = chosen_values(ctx, TRAIN_OPTIONS, values, DemoSettings)
         spec = build_run_spec(
-            variant=variant, overrides=_parse_sets(set_, "--set"), train_tracks=track,
-            test_tracks=test_track, reference=reference, lac=lac, seed=seed, device=device,
-            threads=threads, env_overrides=_parse_sets(env_set, "--env-set"),
-            schedule={"episodes": episodes, "env_steps": env_steps, "max_steps": max_steps,
-                      "test_every_episodes": test_every, "test_starts": test_starts,
-                      "test_max_steps": test_max_steps, "cars": cars,
-                      "traffic_bots": traffic_bots,
-                      "test_grip_scales": list(test_grip)},
-            demos=_demo_options(demo_laps, line=demo_line, batch_fraction=demo_fraction,
-                                bc_steps=bc_steps, bc_weight=bc_weight),
-            preset=preset, source="train options",
+            **chosen_values(ctx, TRAIN_OPTIONS, values, RunSpec),
+            overrides=_parse_sets(set_, "--set"), env_overrides=_parse_sets(env_set, "--env-set"),
+            schedule=chosen_values(ctx, TRAIN_OPTIONS, values, Schedule),
+            demos=demos or None, preset=preset, source="train options",
         )  # fmt: skip
         if JobFolder(out).is_finished():
             raise UserInputError(f"{out} holds a finished run (summary.json); choose another --out")
@@ -158,6 +125,8 @@ def register(app: typer.Typer) -> None:
         summary = train(spec, out, progress)
         summary["out"] = str(out)
         emit(summary, as_json, _render_result(summary))
+
+    app.command("train")(with_field_options(train_cmd, TRAIN_OPTIONS))
 
     @app.command("eval")
     def eval_cmd(
