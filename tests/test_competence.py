@@ -174,4 +174,4 @@ def test_a_part_with_a_cpu_budget_runs_to_it_and_reports_its_time_to_competence(
     row = table.rows[0]
     assert row["text"][("cpu: oval MOT", "clean lap")] == "miss (0/1)"
     assert row["text"][("cpu: oval MOT", "best/limit")] == "-"
-    assert any("budget 3 CPU-s, stopping at the best-bot" in n for n in table.notes)
+    assert any("budget 3 CPU-s, stop_at best-bot" in n for n in table.notes)

@@ -114,7 +114,7 @@ def competence_table(ctx: Context) -> ReportTable:
             for key, fam in ordered_rows(jobs, ctx.row_keys)}  # fmt: skip
     for label, grp in groups.items():
         bots = grp["bots"]
-        stop = "" if grp["stop_at"] == "none" else f", stopping at the {grp['stop_at']}"
+        stop = "" if grp["stop_at"] == "none" else f", stop_at {grp['stop_at']}"
         table.notes.append(
             f"{label}: follower {bots.centre_s:.3f} s on the centre line, {bots.mincurv_s:.3f} s "
             f"on the min-curvature line; reference limit {bots.reference_limit_s:.3f} s; budget "
