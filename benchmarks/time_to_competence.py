@@ -1,42 +1,39 @@
 """Time to competence: CPU-seconds until each entrant first laps cleanly, beats the follower bot
 on the centre line and beats it on the minimum-curvature line, against Stable-Baselines3 SAC.
 
-Entrants are ``VARIANT:PRESET`` pairs (``--entrants WIN1:best,SAC:best``), each an ordinary
-``training.loop.train`` job built by ``training.spec.build_run_spec`` (``--set KEY=VALUE`` agent
-overrides on top, for every entrant), trained on ``--track`` with ``--reference`` (and ``--lac``),
-tested greedily every 5 episodes from 3 starts. Before the clock: the follower bot's best lap on
-the centre line and on the min-curvature line, and the reference limit (the quasi-steady-state
-lap on the min-curvature line). Per run, the CPU-seconds (``time.process_time`` of the run's own
-process, from the start of training: updates, env steps, the tests, demonstrations and their
-behaviour-cloning warm start) until the first test round with
-
-  (a) a clean lap (the model's clean lap, ``results.metrics``: zero damage over all 3 starts),
-  (b) a clean lap faster than the follower on the centre line,
-  (c) a clean lap faster than the follower on the min-curvature line;
-
-an entrant with demonstrations counts as beating a bot in (b) and (c) only when it also beats the
-bot that demonstrated (the follower on ``demos.line``; its lap is ``summary["demos"]["lap_s"]``).
-Also the run's best clean lap over the reference limit and its clean-start rate: the fraction of
-test rounds, from the round of the first clean lap on (that round included), in which at least
-2 of the 3 starts drive a lap with zero lap damage (from the job's tests.parquet). A run stops
-at (c) or when its CPU budget is spent; with ``--to-budget`` only at the budget, so that the best
-lap / limit is what the budget buys (stopped at (c), a run's best is its first lap past the bot).
+Entrants are ``VARIANT:PRESET`` pairs (``--entrants WIN1:best,SAC:best``). The benchmark writes
+one tournament (``<out>/time_to_competence.toml``, results in ``<out>/time-to-competence/``) with
+one part per entrant, run by the product (``tourney.api.run_tournament``: its worker pool, one
+process per seed, ``--jobs`` at a time, and its resume): each part trains its entrant on
+``--track`` with ``--reference`` (and ``--lac``), ``--set KEY=VALUE`` agent overrides on top,
+tested greedily every 5 episodes from 3 starts, with a CPU budget of ``--budget-cpu-s``
+(schedule ``budget_cpu_s``) and ``stop_at = "best-bot"`` (a run ends once it beats the follower
+on the min-curvature line; with ``--to-budget`` only at the budget, so that the best lap / limit
+is what the budget buys), and races the follower on the centre and min-curvature lines as
+baselines. The figures are the product's: the report's time-to-competence table
+(``report.competence_table`` on ``results.competence``, docs/report.md), which defines the
+milestones (a) first clean lap, (b) beat the follower on the centre line, (c) on the
+min-curvature line, the best lap / reference limit and the clean-start rate.
 
 The anchor, in the same run: Stable-Baselines3 SAC at its defaults (``SAC("MlpPolicy", env,
 seed=seed)``, the ``bench`` extra) on the same env (FormulaRacing-v0 from
 ``RunEnvs(spec).make(track, test=False)``: same track, line, LAC, random starts and episode
 length; the raw env reward, as an SB3 user sees it), budget and seeds, tested with the same
-protocol. Ratios per milestone: our median CPU-s / SAC's (goal <= 0.5). Every (entrant, seed)
-and every SAC seed runs in its own spawned process with one torch thread, ``--jobs`` at a time.
+protocol, on the same CPU clock and stop rule (``training.budget``), its milestones read by
+``results.competence`` from the tests table it writes. Each SAC seed runs in its own spawned
+process, ``--jobs`` at a time, after the tournament. Ratios per milestone: our median CPU-s /
+SAC's (goal <= 0.5).
 
-Medians are over seeds with a miss counted as infinite (printed "miss", null in the JSON).
-Goals (issue 11): oval: (b) <= 60 CPU-s, (c) <= 300 CPU-s, best lap / limit <= 1.02;
-technical (recorded + LAC): (a) <= 60 CPU-s with clean-start rate >= 2/3, (c) <= 3600 CPU-s,
-best lap / limit <= 1.05. A table goes to stderr; the last line of stdout is one JSON object.
+Medians are over seeds with a miss counted as infinite (printed "miss", null in the JSON; a
+failed seed counts as a run that reached nothing). Goals: oval: (b) <= 60 CPU-s, (c) <= 300
+CPU-s, best lap / limit <= 1.02; technical (recorded + LAC): (a) <= 60 CPU-s with clean-start
+rate >= 2/3, (c) <= 3600 CPU-s, best lap / limit <= 1.05. A table goes to stderr; the last line
+of stdout is one JSON object. Seeds must be consecutive (a tournament's seeds are ``seed_base``
++ 0, 1, ...); ``--out`` reused with the same settings resumes (finished runs are kept).
 
     .venv/bin/python benchmarks/time_to_competence.py [--track oval] [--reference centre] [--lac]
         [--entrants WIN1:best,SAC:best,PER1M:paper,WIN1:best-demos] [--seeds 0,1,2,3]
-        [--jobs 2] [--budget-cpu-s 600] [--set KEY=VALUE] [--no-sb3] [--out DIR]
+        [--jobs 2] [--budget-cpu-s 600] [--to-budget] [--set KEY=VALUE] [--no-sb3] [--out DIR]
 """
 
 from __future__ import annotations
@@ -52,25 +49,26 @@ import importlib.util  # noqa: E402
 import itertools  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
-import statistics  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
-import time  # noqa: E402
 import traceback  # noqa: E402
 from collections.abc import Iterable, Mapping  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
+from formula_tourney.results.competence import (  # noqa: E402
+    MILESTONE_LABELS,
+    MILESTONES,
+    Bots,
+    run_competence,
+    summarise,
+    thresholds,
+)
+
 TEST_EVERY = 5
 TEST_STARTS = 3
-CLEAN_STARTS = 2  # of TEST_STARTS: a round counts as a clean start when this many lap cleanly
 DEFAULT_ENTRANTS = "WIN1:best,SAC:best,PER1M:paper,WIN1:best-demos"
-MILESTONES = ("first_clean_lap", "beat_centre_bot", "beat_mincurv_bot")
-MILESTONE_LABELS = {
-    "first_clean_lap": "(a) first clean lap",
-    "beat_centre_bot": "(b) beat follower, centre",
-    "beat_mincurv_bot": "(c) beat follower, mincurv",
-}
+TOURNAMENT = "time-to-competence"
 RATIO_GOAL = 0.5
 GOALS: dict[str, dict[str, Any]] = {
     "oval": {"setup": "oval", "beat_centre_bot_cpu_s": 60.0, "beat_mincurv_bot_cpu_s": 300.0,
@@ -115,98 +113,15 @@ def parse_overrides(pairs: Iterable[str]) -> dict[str, Any]:
     return out
 
 
-def thresholds(bot_centre_s: float, bot_mincurv_s: float,
-               demo_lap_s: float | None = None) -> dict[str, float]:  # fmt: skip
-    """The lap each milestone must beat: (a) any clean lap, (b) the follower on the centre line,
-    (c) on the min-curvature line; with demonstrations also the demonstrator's lap."""
-    demo = math.inf if demo_lap_s is None or not math.isfinite(demo_lap_s) else float(demo_lap_s)
-    return {
-        "first_clean_lap": math.inf,
-        "beat_centre_bot": min(float(bot_centre_s), demo),
-        "beat_mincurv_bot": min(float(bot_mincurv_s), demo),
-    }
-
-
-def _models(tests: Any, track: str) -> Any:
-    """One row per test round on ``track`` (results.metrics' models), in round order."""
-    from formula_tourney.results.metrics import model_table
-
-    frame = tests[tests["track"] == track]
-    if "job_id" not in frame.columns:
-        frame = frame.assign(job_id="run")
-    return model_table(frame).sort_values("episode", kind="stable").reset_index(drop=True)
-
-
-def milestones(
-    tests: Any, track: str, limits: Mapping[str, float], cpu_by_episode: Mapping[int, float],
-    cpu_total: float,
-) -> dict[str, dict[str, Any] | None]:  # fmt: skip
-    """The first test round reaching each milestone: a clean lap strictly below its limit
-    (``thresholds``). Each reached milestone has episode, env_steps, lap_s and cpu_s (the CPU
-    clock read right after that round's tests; ``cpu_total`` for a round not in the map)."""
-    models = _models(tests, track)
-    env_steps = tests.groupby("episode")["env_steps"].max() if len(tests) else {}
-    out: dict[str, dict[str, Any] | None] = {}
-    for name in MILESTONES:
-        limit = limits[name]
-        hit = None
-        for row in models.itertuples(index=False):
-            lap = float(row.clean_lap_s)
-            if math.isfinite(lap) and lap < limit:
-                episode = int(row.episode)
-                hit = {"episode": episode, "env_steps": int(env_steps[episode]), "lap_s": lap,
-                       "cpu_s": float(cpu_by_episode.get(episode, cpu_total))}  # fmt: skip
-                break
-        out[name] = hit
-    return out
-
-
-def learning_curve(
-    tests: Any, track: str, cpu_by_episode: Mapping[int, float], cpu_total: float,
-) -> list[dict[str, Any]]:  # fmt: skip
-    """Per test round: episode, CPU-s then and its clean lap (None: no start lapped cleanly).
-
-    Kept in the JSON so a miss can be read off its curve (a run that crawls towards the bot
-    differs from one that never laps twice), and drawn by ``--plot``."""
-    out = []
-    for row in _models(tests, track).itertuples(index=False):
-        lap = float(row.clean_lap_s)
-        episode = int(row.episode)
-        cpu_s = float(cpu_by_episode.get(episode, cpu_total))
-        out.append({"episode": episode, "cpu_s": round(cpu_s, 1),
-                    "clean_lap_s": round(lap, 3) if math.isfinite(lap) else None})  # fmt: skip
-    return out
-
-
-def best_clean_lap(tests: Any, track: str) -> float:
-    """The run's best lap: its fastest model clean lap on ``track`` (nan if none)."""
-    laps = _models(tests, track)["clean_lap_s"].astype(float)
-    laps = laps[laps.notna()]
-    return float(laps.min()) if len(laps) else math.nan
-
-
-def clean_start_rate(
-    tests: Any, track: str, from_episode: int | None, min_clean: int = CLEAN_STARTS
-) -> float | None:
-    """Fraction of test rounds from ``from_episode`` on (included) in which at least
-    ``min_clean`` starts drove a lap with zero lap damage (finite ``best_lap_s``); None when
-    there is no such round (no first clean lap)."""
-    if from_episode is None:
-        return None
-    frame = tests[(tests["track"] == track) & (tests["episode"] >= from_episode)]
-    if frame.empty:
-        return None
-    import numpy as np
-
-    clean = np.isfinite(frame["best_lap_s"].astype(float).to_numpy())
-    per_round = frame.assign(clean=clean).groupby("episode")["clean"].sum()
-    return float((per_round >= min_clean).mean())
-
-
-def median_inf(values: Iterable[float | None]) -> float:
-    """Median with a miss (None or nan) counted as infinite; inf for no values."""
-    xs = [math.inf if v is None or math.isnan(v) else float(v) for v in values]
-    return float(statistics.median(xs)) if xs else math.inf
+def parse_seeds(text: str) -> list[int]:
+    """``0,1,2`` -> [0, 1, 2]; the seeds of a tournament are consecutive (seed_base + k)."""
+    seeds = sorted({int(x) for x in text.split(",") if x.strip()})
+    if not seeds:
+        raise SystemExit("--seeds is empty")
+    if seeds != list(range(seeds[0], seeds[0] + len(seeds))):
+        raise SystemExit(f"--seeds must be consecutive (the tournament's seeds are seed_base + "
+                         f"0, 1, ...), got {text!r}")  # fmt: skip
+    return seeds
 
 
 def finite(x: float | None, ndigits: int = 1) -> float | None:
@@ -223,22 +138,9 @@ def ratio(ours: float, anchor: float) -> float | None:
     return ours / anchor if anchor > 0 else None
 
 
-def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
-    """Medians over one entrant's seeds: each milestone's CPU-s (miss = inf), best lap / limit
-    (miss = inf) and clean-start rate (a seed without a clean lap counts 0)."""
-    out: dict[str, Any] = {"seeds": len(runs)}
-    for name in MILESTONES:
-        out[f"median_{name}_cpu_s"] = median_inf(r["cpu_s"].get(name) for r in runs)
-        out[f"reached_{name}"] = sum(r["cpu_s"].get(name) is not None for r in runs)
-    out["median_best_lap_to_limit"] = median_inf(r.get("best_lap_to_limit") for r in runs)
-    rates = [r.get("clean_start_rate") or 0.0 for r in runs]
-    out["median_clean_start_rate"] = float(statistics.median(rates)) if rates else 0.0
-    return out
-
-
 def goal_flags(track: str, summary: Mapping[str, Any],
                ratios: Mapping[str, float | None] | None) -> dict[str, bool] | None:  # fmt: skip
-    """Which of the issue's goals for ``track`` the entrant's medians meet (None: no goals)."""
+    """Which of the goals for ``track`` the entrant's medians meet (None: no goals)."""
     goals = GOALS.get(track)
     if goals is None:
         return None
@@ -259,136 +161,136 @@ def goal_flags(track: str, summary: Mapping[str, Any],
     return flags
 
 
+def stop_lap_s(bots: Bots, to_budget: bool) -> float:
+    """The clean lap that ends the anchor's run early, as ``stop_at = "best-bot"`` ends ours:
+    (c)'s lap, or none (-inf) with ``--to-budget``."""
+    return -math.inf if to_budget else thresholds(bots)["beat_mincurv_bot"]
+
+
+def part_name(variant: str, preset: str) -> str:
+    """The tournament part of one entrant (a folder name)."""
+    return f"{variant}-{preset}"
+
+
+def _toml(value: Any) -> str:
+    """A TOML value: strings and numbers as JSON writes them, tables inline."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, Mapping):
+        return "{" + ", ".join(f"{json.dumps(str(k))} = {_toml(v)}" for k, v in value.items()) + "}"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    return json.dumps(value)
+
+
+def tournament_toml(*, track: str, reference: str, lac: bool, entrants: list[tuple[str, str]],
+                    seeds: list[int], defaults: Mapping[str, Any],
+                    demos: Mapping[tuple[str, str], Mapping[str, Any]]) -> str:  # fmt: skip
+    """The benchmark's tournament: one part per entrant, each racing the two followers."""
+    lines = [f"name = {_toml(TOURNAMENT)}",
+             f"description = {_toml(f'time to competence on {track}')}",
+             f"seed_base = {seeds[0]}", "", "[defaults]", f"seeds = {len(seeds)}"]
+    lines += [f"{key} = {_toml(value)}" for key, value in defaults.items()]
+    for variant, preset in entrants:
+        lines += ["", "[[parts]]", f"name = {_toml(part_name(variant, preset))}",
+                  f"entrants = {_toml([variant])}", f"preset = {_toml(preset)}",
+                  f"train_tracks = {_toml([track])}",
+                  f"setups = {_toml([{'reference': reference, 'lac': lac}])}",
+                  "baselines = " + _toml([{"bot": "follower", "reference": line}
+                                          for line in ("centre", "mincurv")])]  # fmt: skip
+        if (variant, preset) in demos:
+            lines.append(f"demos = {_toml(demos[(variant, preset)])}")
+    return "\n".join(lines) + "\n"
+
+
 # --- what is measured before the clock (parent) ----------------------------------------------
-def bot_figures(track_name: str, car_overrides: dict[str, Any] | None = None) -> dict[str, float]:
+def bot_figures(track_name: str, car_overrides: dict[str, Any] | None = None) -> Bots:
     """The follower's best lap on the centre and on the min-curvature line, and the limit, for
-    the runs' own car (``--env-set car=...``): a bot in another car is no anchor."""
-    from formula_tourney.bots.follower import drive
-    from formula_tourney.bots.reference import reference_offsets
+    the runs' own car (``--env-set car=...``): a bot in another car is no anchor. The parts'
+    baselines drive the same laps; these set the tests' step cap and the anchor's stop."""
     from formula_tourney.lines.limit import reference_limit_s
     from formula_tourney.sim.car_params import CarParams
     from formula_tourney.sim.catalog import load_track
+    from formula_tourney.training.budget import follower_lap_s
 
-    track = load_track(track_name)
     car = CarParams(**(car_overrides or {}))
-    laps = {kind: float(drive(track, reference_offsets(track, kind, car), laps=2,
-                              car=car)["best_lap_s"])
-            for kind in ("centre", "mincurv")}  # fmt: skip
-    return {"centre_s": laps["centre"], "mincurv_s": laps["mincurv"],
-            "reference_limit_s": float(reference_limit_s(track, car))}  # fmt: skip
+    return Bots(follower_lap_s(track_name, "centre", car),
+                follower_lap_s(track_name, "mincurv", car),
+                float(reference_limit_s(load_track(track_name), car)))
 
 
-def _warm_up(spec: Any) -> Any:
-    """Build and step the run's env once before the clock (track, line and numba kernels load
-    from their caches), so neither side pays it; returns the RunEnvs."""
-    import numpy as np
-
-    from formula_tourney.training.envs import RunEnvs
-
-    envs = RunEnvs(spec)
-    env = envs.make(spec.key_track, test=False)
-    env.reset(seed=0)
-    for _ in range(3):
-        env.step(np.array([0.0, 0.5, 0.0], np.float32))
-    env.close()
-    return envs
-
-
-def _say(label: str, seed: int, cpu: float, episode: int, env_steps: int,
-         best: float | None) -> None:  # fmt: skip
+def _say(who: str, cpu: float, episode: int, env_steps: int, best: float | None) -> None:
     shown = "-" if best is None or not math.isfinite(best) else f"{best:.3f}"
-    print(f"{label} seed {seed}: cpu {cpu:6.0f} s  episode {episode}  env steps {env_steps}  "
-          f"best {shown}", file=sys.stderr, flush=True)  # fmt: skip
+    print(f"{who}: cpu {cpu:6.0f} s  episode {episode}  env steps {env_steps}  best {shown}",
+          file=sys.stderr, flush=True)  # fmt: skip
 
 
-def _result(
-    task: Mapping[str, Any], tests: Any, cpu_by_episode: dict[int, float], cpu_total: float,
-    demo_lap_s: float | None, **extra: Any,
-) -> dict[str, Any]:  # fmt: skip
-    bots = task["bots"]
-    track = task["track"]
-    limits = thresholds(bots["centre_s"], bots["mincurv_s"], demo_lap_s)
-    hits = milestones(tests, track, limits, cpu_by_episode, cpu_total)
-    best = best_clean_lap(tests, track)
-    first = hits["first_clean_lap"]
+def _run_record(label: str, run: Mapping[str, Any], **extra: Any) -> dict[str, Any]:
+    """A run of ``results.competence`` as the benchmark's JSON shows it."""
     return {
-        "label": task["label"], "seed": task["seed"],
-        "cpu_s": {n: (None if h is None else round(h["cpu_s"], 1)) for n, h in hits.items()},
-        "milestones": hits,
-        "limits_s": {n: finite(v, 3) for n, v in limits.items()},
-        "demo_lap_s": finite(demo_lap_s, 3),
-        "best_lap_s": finite(best, 3),
-        "best_lap_to_limit": finite(best / bots["reference_limit_s"], 4),
-        "clean_start_rate": clean_start_rate(tests, track, first and first["episode"]),
-        "cpu_s_total": round(cpu_total, 1),
-        "curve": learning_curve(tests, track, cpu_by_episode, cpu_total),
-        **extra,
+        "label": label, "seed": run["seed"],
+        "cpu_s": {n: finite(v) for n, v in run["cpu_s"].items()},
+        "milestones": run["milestones"], "limits_s": run["limits_s"],
+        "demo_lap_s": finite(run["demo_lap_s"], 3), "best_lap_s": finite(run["best_lap_s"], 3),
+        "best_lap_to_limit": finite(run["best_lap_to_limit"], 4),
+        "clean_start_rate": run["clean_start_rate"],
+        "cpu_s_total": finite(run.get("cpu_s_total")), "curve": run["curve"],
+        "env_steps": run.get("env_steps"), "updates": run.get("updates"),
+        "episodes": run.get("episodes"), **extra,
     }  # fmt: skip
 
 
-# --- one (entrant, seed) run -------------------------------------------------------------------
-def stop_lap_s(task: Mapping[str, Any], demo_lap_s: float | None = None) -> float:
-    """The clean lap that ends a run early: (c)'s, or none (-inf) with ``--to-budget``, where
-    every run spends its whole budget so that its best lap / limit is the budget's own (a run
-    stopped at (c) keeps the first lap under the best bot as its best)."""
-    if task.get("to_budget"):
-        return -math.inf
-    bots = task["bots"]
-    return thresholds(bots["centre_s"], bots["mincurv_s"], demo_lap_s)["beat_mincurv_bot"]
+def _failed(label: str, seed: int, error: str) -> dict[str, Any]:
+    """A seed whose run failed: it reached nothing."""
+    return {"label": label, "seed": seed, "error": error, "cpu_s": dict.fromkeys(MILESTONES),
+            "best_lap_s": None, "best_lap_to_limit": None, "clean_start_rate": None,
+            "curve": []}  # fmt: skip
 
 
-def run_entrant(task: dict[str, Any]) -> dict[str, Any]:
-    """One training run in this process; CPU-seconds are this process's own."""
-    import numpy as np
-
-    from formula_tourney.agents.ddpg import configure_torch
+# --- our entrants: one tournament --------------------------------------------------------------
+def run_entrants(toml_path: Path, out_root: Path, jobs: int,
+                 entrants: list[tuple[str, str]]) -> dict[str, dict[str, Any]]:  # fmt: skip
+    """Run the tournament through the product and read its time-to-competence table: per
+    entrant label, its runs (failed seeds as misses), demos and beyond-paper labels."""
+    from formula_tourney.errors import UserInputError
+    from formula_tourney.report.competence_table import competence_table
+    from formula_tourney.report.load import load_tournament
+    from formula_tourney.report.paper_tables import Context
     from formula_tourney.results.folder import JobFolder
-    from formula_tourney.training.loop import train
-    from formula_tourney.training.spec import RunSpec
+    from formula_tourney.tourney.api import run_tournament
 
-    configure_torch(1)
-    spec = RunSpec.from_json(task["spec"], "benchmark spec")
-    envs = _warm_up(spec)
-    predicted_demo = None
-    if spec.demos is not None:
-        # the demonstrator's lap decides when (c) is reached, so the stop rule needs it: the
-        # demonstrations are deterministic in the seed, drive them once here, off the clock
-        from formula_tourney.training.demos import collect_demonstrations
+    def on_event(event: Any) -> None:
+        info = event.info
+        if event.kind == "progress" and "cpu_s" in info and info["episode"] % TEST_EVERY == 0:
+            _say(event.job_id, info["cpu_s"], info["episode"], info["env_steps"],
+                 info["best_lap_s"])
+        elif event.kind == "failed":
+            print(f"{event.job_id}: FAILED {event.reason}", file=sys.stderr, flush=True)
 
-        env = envs.make(spec.key_track, test=False)
-        obs_dim = int(np.prod(env.observation_space.shape))
-        act_dim = int(np.prod(env.action_space.shape))
-        env.close()
-        seq = np.random.SeedSequence(spec.seed).spawn(4)[3]  # the loop's demonstration stream
-        lap = collect_demonstrations(spec, envs, obs_dim, act_dim, seq).key_lap_s
-        predicted_demo = lap if math.isfinite(lap) else None
-    stop_at = stop_lap_s(task, predicted_demo)
-    budget = float(task["budget_cpu_s"])
-    cpu_by_episode: dict[int, float] = {}
-    label, seed = task["label"], task["seed"]
-
-    cpu0 = time.process_time()
-
-    def progress(p: dict[str, Any]) -> bool:
-        cpu = time.process_time() - cpu0
-        best = p["best_lap_s"]
-        if p["episode"] % TEST_EVERY == 0:
-            cpu_by_episode[int(p["episode"])] = cpu
-            _say(label, seed, cpu, p["episode"], p["env_steps"], best)
-        reached = best is not None and best < stop_at
-        return not reached and cpu < budget
-
-    job = Path(task["job_dir"])
-    summary = train(spec, job, progress)
-    cpu_total = time.process_time() - cpu0
-    demos = summary.get("demos")
-    demo_lap = None if demos is None else demos.get("lap_s")
-    tests = JobFolder(job).tests()
-    return _result(
-        task, tests, cpu_by_episode, cpu_total, demo_lap,
-        demo_lap_predicted_s=finite(predicted_demo, 3), env_steps=summary["env_steps"],
-        updates=summary["updates"], episodes=summary["episodes"], job=str(job),
-    )  # fmt: skip
+    try:
+        run_tournament(toml_path, workers=jobs, results_dir=out_root, on_event=on_event)
+    except UserInputError as err:
+        raise SystemExit(f"error: {err}") from None
+    data = load_tournament(out_root / TOURNAMENT)
+    table = competence_table(Context.build(data))
+    by_part = {part_name(v, p): f"{v}:{p}" for v, p in entrants}
+    out: dict[str, dict[str, Any]] = {label: {"runs": []} for label in by_part.values()}
+    for record in table.records:
+        label = by_part[record["part"]]
+        out[label]["runs"] += [_run_record(label, r, job=str(data.job_dir(r["job_id"])))
+                               for r in record["runs"]]  # fmt: skip
+    for _, job in data.jobs.iterrows():
+        label = by_part.get(str(job["part"]))
+        if label is None:
+            continue
+        if job["status"] != "done":
+            out[label]["runs"].append(_failed(label, int(job["seed"]),
+                                              str(job["reason"] or job["status"])))
+        elif "demos" not in out[label]:
+            folder = JobFolder(data.job_dir(str(job["job_id"])))
+            out[label]["demos"] = folder.config().get("demos")
+            out[label]["beyond_paper"] = folder.beyond_paper()
+    return out
 
 
 # --- one SB3 SAC seed --------------------------------------------------------------------------
@@ -409,14 +311,13 @@ class _Greedy:
 
 
 def run_sb3(task: dict[str, Any]) -> dict[str, Any]:
-    """SB3 SAC at its defaults on the run's env, tested as our runs are; own CPU clock."""
-    from stable_baselines3 import SAC
-    from stable_baselines3.common.callbacks import BaseCallback
-    from stable_baselines3.common.logger import Logger
-
+    """SB3 SAC at its defaults on the run's env, tested as our runs are, on the same CPU clock
+    and stop rule (``training.budget``); its milestones by ``results.competence``."""
     from formula_tourney.agents.ddpg import configure_torch
     from formula_tourney.results.folder import JobFolder
     from formula_tourney.results.metrics import model_clean_lap_s
+    from formula_tourney.training.budget import CpuClock, StopRule, warm_up
+    from formula_tourney.training.envs import RunEnvs
     from formula_tourney.training.evaluate import (
         laps_rows,
         run_test_episode,
@@ -425,19 +326,21 @@ def run_sb3(task: dict[str, Any]) -> dict[str, Any]:
     )
     from formula_tourney.training.spec import RunSpec
 
-    configure_torch(1)
     spec = RunSpec.from_json(task["spec"], "benchmark spec")
-    _warm_up(spec)
-    stop_at = stop_lap_s(task)
-    budget = float(task["budget_cpu_s"])
+    from stable_baselines3 import SAC
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.logger import Logger
+
+    configure_torch(1)
+    warm_up(spec)
+    bots = Bots(**task["bots"])
+    stop = StopRule(float(task["budget_cpu_s"]), stop_lap_s(bots, bool(task.get("to_budget"))))
     label, seed, track = task["label"], task["seed"], spec.key_track
-    cpu_by_episode: dict[int, float] = {}
     tests: list[dict[str, Any]] = []
     laps: list[dict[str, Any]] = []
 
-    cpu0 = time.process_time()
-    from formula_tourney.training.envs import RunEnvs
-
+    clock = CpuClock()
+    clock.start()
     envs = RunEnvs(spec)
     env = envs.make(track, test=False)
     test_env = envs.make(track, test=True)
@@ -464,43 +367,39 @@ def run_sb3(task: dict[str, Any]) -> dict[str, Any]:
                                                record_trace=False)
                               for k, s0 in enumerate(starts)]  # fmt: skip
                     steps = int(self.model.num_timesteps)
-                    for d in drives:
-                        tests.append(tests_row(d, self.episodes, steps, ""))
-                        laps.extend(laps_rows(d, self.episodes))
                     lap = model_clean_lap_s([d.best_lap_s for d in drives],
                                             [d.damage for d in drives])  # fmt: skip
                     if math.isfinite(lap):
                         self.best = min(self.best, lap)
-                    cpu = time.process_time() - cpu0
-                    cpu_by_episode[self.episodes] = cpu
-                    _say(label, seed, cpu, self.episodes, steps, self.best)
-            cpu = time.process_time() - cpu0
-            return not self.best < stop_at and cpu < budget
+                    cpu = clock.seconds()
+                    for d in drives:
+                        tests.append({**tests_row(d, self.episodes, steps, ""), "cpu_s": cpu})
+                        laps.extend(laps_rows(d, self.episodes))
+                    _say(f"{label} seed {seed}", cpu, self.episodes, steps, self.best)
+            return stop.reason(self.best, clock.seconds()) is None
 
     tester = Tester()
     model.learn(total_timesteps=10**9, callback=tester)
-    cpu_total = time.process_time() - cpu0
+    cpu_total = clock.seconds()
     env.close()
     test_env.close()
     job = JobFolder(task["job_dir"])
     job.path.mkdir(parents=True, exist_ok=True)
     job.write_tables([], tests, laps)
-    return _result(
-        task, job.tests(), cpu_by_episode, cpu_total, None, env_steps=int(model.num_timesteps),
-        updates=int(getattr(model, "_n_updates", 0)), episodes=tester.episodes,
-        job=str(job.path),
-    )  # fmt: skip
+    run = run_competence(job.tests(), track, bots)
+    return _run_record(label, {**run, "seed": seed, "cpu_s_total": cpu_total,
+                               "env_steps": int(model.num_timesteps),
+                               "updates": int(getattr(model, "_n_updates", 0)),
+                               "episodes": tester.episodes}, job=str(job.path))  # fmt: skip
 
 
 def run_job(task: dict[str, Any]) -> dict[str, Any]:
-    """A task in a worker; a crash is reported as a run that reached nothing."""
+    """An anchor seed in a worker; a crash is reported as a run that reached nothing."""
     try:
-        return run_sb3(task) if task["kind"] == "sb3" else run_entrant(task)
+        return run_sb3(task)
     except Exception as err:  # noqa: BLE001 - one failed seed must not lose the others
         traceback.print_exc()
-        return {"label": task["label"], "seed": task["seed"], "error": f"{type(err).__name__}: "
-                f"{err}", "cpu_s": {n: None for n in MILESTONES}, "best_lap_s": None,
-                "best_lap_to_limit": None, "clean_start_rate": None, "curve": []}  # fmt: skip
+        return _failed(task["label"], task["seed"], f"{type(err).__name__}: {err}")
 
 
 # --- output ------------------------------------------------------------------------------------
@@ -631,7 +530,7 @@ def main() -> None:
     ap.add_argument("--reference", default="centre", choices=["centre", "recorded", "mincurv"])
     ap.add_argument("--lac", action="store_true", help="look-ahead curvature in the observation")
     ap.add_argument("--entrants", default=DEFAULT_ENTRANTS, help="VARIANT:PRESET,...")
-    ap.add_argument("--seeds", default="0,1,2,3", help="comma-separated seeds")
+    ap.add_argument("--seeds", default="0,1,2,3", help="comma-separated consecutive seeds")
     ap.add_argument("--jobs", type=int, default=2, help="runs side by side (processes)")
     ap.add_argument("--budget-cpu-s", type=float, default=600.0)
     ap.add_argument("--max-steps", type=int, default=1000, help="steps per training episode")
@@ -651,13 +550,11 @@ def main() -> None:
     ap.add_argument("--to-budget", action="store_true",
                     help="train every run for its whole budget instead of stopping at (c): "
                     "best lap / limit is then the budget's, not the first lap past the best bot")
-    ap.add_argument("--out", default=None, help="folder for the job folders (default: temp)")
+    ap.add_argument("--out", default=None, help="folder for the tournament (default: temp)")
     ap.add_argument("--plot", default=None, metavar="FILE",
                     help="draw each run's clean test laps against CPU-s into FILE.png/.pdf")
     args = ap.parse_args()  # fmt: skip
-    seeds = [int(x) for x in args.seeds.split(",") if x.strip()]
-    if not seeds:
-        raise SystemExit("--seeds is empty")
+    seeds = parse_seeds(args.seeds)
     entrants = parse_entrants(args.entrants)
     overrides = parse_overrides(args.set)
     demo_overrides = parse_overrides(args.demos_set)
@@ -666,82 +563,78 @@ def main() -> None:
 
     from formula_tourney.errors import UserInputError
     from formula_tourney.sim.config import EnvSettings
+    from formula_tourney.training.presets import get_preset
     from formula_tourney.training.spec import build_run_spec
 
     try:
         car_overrides = EnvSettings.model_validate(env_overrides).car
-    except ValueError as err:
-        raise SystemExit(f"--env-set: {err}") from None
+        preset_demos = {(v, p): get_preset(p).demos for v, p in entrants}
+    except (ValueError, UserInputError) as err:
+        raise SystemExit(f"error: {err}") from None
     bots = bot_figures(args.track, car_overrides)
-    print(f"follower on {args.track}: centre {bots['centre_s']:.3f} s, mincurv "
-          f"{bots['mincurv_s']:.3f} s; reference limit {bots['reference_limit_s']:.3f} s",
+    print(f"follower on {args.track}: centre {bots.centre_s:.3f} s, mincurv "
+          f"{bots.mincurv_s:.3f} s; reference limit {bots.reference_limit_s:.3f} s",
           file=sys.stderr)  # fmt: skip
     control_period = 0.2
-    test_max_steps = int(3 * max(bots["centre_s"], bots["mincurv_s"]) / control_period) + 100
+    test_max_steps = int(3 * max(bots.centre_s, bots.mincurv_s) / control_period) + 100
     schedule = {"episodes": 10**7, "max_steps": args.max_steps,
                 "test_every_episodes": TEST_EVERY, "test_starts": TEST_STARTS,
-                "test_max_steps": test_max_steps}  # fmt: skip
+                "test_max_steps": test_max_steps, "budget_cpu_s": args.budget_cpu_s,
+                "stop_at": "none" if args.to_budget else "best-bot"}  # fmt: skip
     owned = sorted(set(schedule_overrides) & set(schedule))
     if owned:
         raise SystemExit(f"--schedule-set: {', '.join(owned)} belong to the benchmark's tests "
-                         "and budget (--max-steps, --budget-cpu-s)")  # fmt: skip
-    common = {"train_tracks": [args.track], "reference": args.reference, "lac": args.lac,
-              "device": "cpu", "threads": 1}  # fmt: skip
-
-    def spec_of(variant: str, preset: str, seed: int, extra: Mapping[str, Any],
-                own_schedule: Mapping[str, Any]) -> Any:
-        try:
-            return build_run_spec(variant=variant, preset=preset, overrides=dict(extra),
-                                  seed=seed, demos=demo_overrides or None,
-                                  env_overrides=env_overrides or None,
-                                  schedule={**schedule, **own_schedule},
-                                  source=f"entrant {variant}:{preset}", **common)  # fmt: skip
-        except UserInputError as err:
-            raise SystemExit(f"error: {err}") from None
+                         "and budget (--max-steps, --budget-cpu-s, --to-budget)")  # fmt: skip
+    defaults = {**schedule, **schedule_overrides, "device": "cpu", "threads": 1,
+                **({"env_overrides": env_overrides} if env_overrides else {}),
+                **({"variant_overrides": overrides} if overrides else {})}  # fmt: skip
+    # a preset's demonstrations under the user's keys, one by one (a part's demos replace them)
+    demos = {pair: {**(preset_demos[pair] or {}), **demo_overrides}
+             for pair in entrants if demo_overrides}  # fmt: skip
 
     out_root = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="ttc-"))
-    print(f"job folders under {out_root}", file=sys.stderr)
-    base = {"track": args.track, "bots": bots, "budget_cpu_s": args.budget_cpu_s,
-            "to_budget": args.to_budget}  # fmt: skip
-    tasks: list[dict[str, Any]] = []
-    specs: dict[str, Any] = {}
+    out_root.mkdir(parents=True, exist_ok=True)
+    toml_path = out_root / "time_to_competence.toml"
+    toml_path.write_text(tournament_toml(
+        track=args.track, reference=args.reference, lac=args.lac, entrants=entrants,
+        seeds=seeds, defaults=defaults, demos=demos), encoding="utf-8")  # fmt: skip
+    print(f"tournament {toml_path}, results under {out_root / TOURNAMENT}", file=sys.stderr)
+    ours = run_entrants(toml_path, out_root, args.jobs, entrants)
+
     use_sb3 = not args.no_sb3
     if use_sb3 and importlib.util.find_spec("stable_baselines3") is None:
         print("stable-baselines3 is not installed (pip install -e '.[bench]'): skipping the SB3 "
               "SAC anchor", file=sys.stderr)  # fmt: skip
         use_sb3 = False
-    for seed in seeds:
-        for variant, preset in entrants:
-            label = f"{variant}:{preset}"
-            spec = spec_of(variant, preset, seed, overrides, schedule_overrides)
-            specs[label] = spec
-            tasks.append({**base, "kind": "ours", "label": label, "seed": seed,
-                          "spec": spec.to_json(),
-                          "job_dir": str(out_root / f"{variant}-{preset}" / f"seed-{seed}")})
-        if use_sb3:  # the env of a plain spec with the same track, line, LAC and tests (one car)
-            spec = spec_of("WIN1", "paper", seed, {}, {})
-            tasks.append({**base, "kind": "sb3", "label": SB3_LABEL, "seed": seed,
-                          "spec": spec.to_json(), "job_dir": str(out_root / "sb3-sac" /
-                                                                 f"seed-{seed}")})  # fmt: skip
-
-    if args.jobs > 1 and len(tasks) > 1:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
-
-        from formula_tourney.tourney.executors import die_with_parent
-
-        # a run killed from the shell (kill, Ctrl-C of a hung parent) takes its workers with it:
-        # orphans went on training and took the cores of the next benchmark
-        with ProcessPoolExecutor(min(args.jobs, len(tasks)), mp.get_context("spawn"),
-                                 initializer=die_with_parent,
-                                 initargs=(os.getpid(),)) as pool:  # fmt: skip
-            runs = list(pool.map(run_job, tasks))
-    else:
-        runs = [run_job(t) for t in tasks]
-
-    sb3_runs = [r for r, t in zip(runs, tasks, strict=True) if t["kind"] == "sb3"]
     sb3 = None
-    if use_sb3:
+    if use_sb3:  # the env of a plain spec with the same track, line, LAC and tests (one car)
+        tasks = []
+        for seed in seeds:
+            try:
+                spec = build_run_spec(
+                    variant="WIN1", preset="paper", seed=seed, train_tracks=[args.track],
+                    reference=args.reference, lac=args.lac, device="cpu", threads=1,
+                    env_overrides=env_overrides or None, schedule=schedule,
+                    source="the SB3 anchor")  # fmt: skip
+            except UserInputError as err:
+                raise SystemExit(f"error: {err}") from None
+            tasks.append({"label": SB3_LABEL, "seed": seed, "spec": spec.to_json(),
+                          "bots": vars(bots), "budget_cpu_s": args.budget_cpu_s,
+                          "to_budget": args.to_budget,
+                          "job_dir": str(out_root / "sb3-sac" / f"seed-{seed}")})  # fmt: skip
+        if args.jobs > 1 and len(tasks) > 1:
+            import multiprocessing as mp
+            from concurrent.futures import ProcessPoolExecutor
+
+            from formula_tourney.tourney.executors import die_with_parent
+
+            # a run killed from the shell takes its workers with it (orphans took the cores)
+            with ProcessPoolExecutor(min(args.jobs, len(tasks)), mp.get_context("spawn"),
+                                     initializer=die_with_parent,
+                                     initargs=(os.getpid(),)) as pool:  # fmt: skip
+                sb3_runs = list(pool.map(run_job, tasks))
+        else:
+            sb3_runs = [run_job(t) for t in tasks]
         sb3 = {"label": SB3_LABEL, "call": 'SAC("MlpPolicy", env, seed=seed, device="cpu")',
                "summary": summarise(sb3_runs), "runs": sorted(sb3_runs, key=lambda r: r["seed"])}
     goals = GOALS.get(args.track)
@@ -750,17 +643,17 @@ def main() -> None:
     results = []
     for variant, preset in entrants:
         label = f"{variant}:{preset}"
-        mine = sorted((r for r in runs if r["label"] == label), key=lambda r: r["seed"])
+        mine = sorted(ours[label]["runs"], key=lambda r: r["seed"])
         s = summarise(mine)
         ratios = None
         if sb3 is not None:
             ratios = {n: ratio(s[f"median_{n}_cpu_s"], sb3["summary"][f"median_{n}_cpu_s"])
                       for n in MILESTONES}  # fmt: skip
-        spec = specs[label]
         results.append({
             "label": label, "variant": variant, "preset": preset,
-            "demos": None if spec.demos is None else spec.demos.model_dump(),
-            "beyond_paper": spec.beyond_paper(), "summary": s, "ratios_vs_sb3": ratios,
+            "part": part_name(variant, preset),
+            "demos": ours[label].get("demos"), "beyond_paper": ours[label].get("beyond_paper"),
+            "summary": s, "ratios_vs_sb3": ratios,
             "goal_met": goal_flags(args.track, s, ratios), "runs": mine,
         })  # fmt: skip
     result = {
@@ -769,10 +662,11 @@ def main() -> None:
         "seeds": seeds,
         "max_steps": args.max_steps, "test_every_episodes": TEST_EVERY,
         "test_starts": TEST_STARTS, "test_max_steps": test_max_steps,
-        "clean_start_min": CLEAN_STARTS, "overrides": overrides,
+        "overrides": overrides,
         "demo_overrides": demo_overrides, "env_overrides": env_overrides,
-        "schedule_overrides": schedule_overrides, "bots": bots,
+        "schedule_overrides": schedule_overrides, "bots": vars(bots),
         "goals": goals, "entrants": results, "sb3": sb3, "out": str(out_root),
+        "tournament": str(toml_path),
     }  # fmt: skip
     print(render(result), file=sys.stderr)
     if args.plot:

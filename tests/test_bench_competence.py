@@ -1,5 +1,6 @@
-"""benchmarks/time_to_competence.py's pure functions: milestones from a tests table, the
-clean-start rate, medians with misses as infinity and the goal flags. No training."""
+"""benchmarks/time_to_competence.py: its tournament (validated by the product), the anchor's stop
+rule, the goal flags and ratios, the plot, a failed seed and the SB3 adapter. No training; the
+milestones themselves are the product's (tests/test_competence.py)."""
 
 from __future__ import annotations
 
@@ -8,12 +9,14 @@ import math
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import pytest
 from simtracks import stadium
 
+from formula_tourney.results.competence import Bots, run_competence, summarise
 from formula_tourney.sim import kernels as K
 from formula_tourney.sim.env import FormulaRacingEnv
+from formula_tourney.tourney.plan import Planner
+from formula_tourney.tourney.spec import parse_spec
 from formula_tourney.training.evaluate import run_test_episode
 
 _PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "time_to_competence.py"
@@ -22,91 +25,66 @@ ttc = importlib.util.module_from_spec(_SPEC)
 _SPEC.loader.exec_module(ttc)
 
 NAN = math.nan
+BOTS = Bots(centre_s=35.4, mincurv_s=34.7, reference_limit_s=33.8)
 
 
-def _tests(
-    rounds: list[tuple[int, list[tuple[float, float]]]], track: str = "oval"
-) -> pd.DataFrame:
-    """A tests table: per round (episode, [(best_lap_s, damage) per start])."""
-    rows = []
-    for episode, drives in rounds:
-        for k, (lap, damage) in enumerate(drives):
-            rows.append({"episode": episode, "env_steps": episode * 1000, "track": track,
-                         "start_s_m": 100.0 * k, "finished": math.isfinite(lap),
-                         "best_lap_s": lap, "laps": int(math.isfinite(lap)), "damage": damage,
-                         "reward": 0.0, "steps": 10, "termination": "max_steps",
-                         "checkpoint": "", "distance_m": 1.0})  # fmt: skip
-    return pd.DataFrame(rows)
+def _curve_run() -> dict:
+    """A run of the product's competence record, as the benchmark shows it."""
+    import pandas as pd
+
+    rows = [{"episode": e, "env_steps": e * 100, "track": "oval", "best_lap_s": lap,
+             "damage": 0.0, "finished": True, "cpu_s": cpu}
+            for e, lap, cpu in ((5, NAN, 10.0), (10, 35.8, 20.0), (15, 34.5, 30.0))]
+    run = run_competence(pd.DataFrame(rows), "oval", BOTS)
+    return ttc._run_record("WIN1:tuned", {**run, "seed": 0, "cpu_s_total": 31.0})
 
 
-# centre bot 35.4 s, mincurv bot 34.7 s
-TABLE = _tests([
-    (5, [(NAN, 0.0), (NAN, 1.0), (NAN, 0.0)]),       # nothing
-    (10, [(36.0, 0.0), (NAN, 2.0), (NAN, 0.0)]),     # a lap, but damage elsewhere: not clean
-    (15, [(36.0, 0.0), (35.8, 0.0), (NAN, 0.0)]),    # (a): clean 35.8
-    (20, [(35.2, 0.0), (35.3, 0.0), (35.1, 0.0)]),   # (b): 35.1 < 35.4
-    (25, [(34.9, 0.0), (NAN, 0.0), (NAN, 0.0)]),     # clean 34.9, not < 34.7
-    (30, [(34.6, 0.0), (34.65, 0.0), (34.5, 0.0)]),  # (c): 34.5
-])  # fmt: skip
-CPU = {5: 10.0, 10: 20.0, 15: 30.0, 20: 40.0, 25: 50.0, 30: 60.0}
+def test_the_tournament_has_one_part_per_entrant_and_the_product_accepts_it(
+    tmp_path: Path,
+) -> None:
+    defaults = {"episodes": 10**7, "max_steps": 1000, "test_every_episodes": 5,
+                "test_starts": 3, "test_max_steps": 631, "budget_cpu_s": 20.0,
+                "stop_at": "best-bot", "device": "cpu", "threads": 1,
+                "env_overrides": {"track_pos_weight": 0}, "variant_overrides": {"batch_size": 32}}
+    text = ttc.tournament_toml(track="oval", reference="centre", lac=False,
+                               entrants=[("WIN1", "fast-small"), ("SAC", "best")],
+                               seeds=[3, 4], defaults=defaults,
+                               demos={("SAC", "best"): {"laps": 2}})  # fmt: skip
+    path = tmp_path / "t.toml"
+    spec = parse_spec(text, path)
+    assert [p.name for p in spec.parts] == ["WIN1-fast-small", "SAC-best"]
+    assert spec.seed_base == 3 and spec.defaults.seeds == 2
+    planner = Planner(spec, path, text, tmp_path / "res")
+    jobs = planner.jobs(0, ["WIN1"])
+    run = planner.run_spec(0, "WIN1", 0, seed=1)
+    assert [j.job_id for j in jobs] == ["WIN1-fast-small/WIN1-MOT/seed-0",
+                                        "WIN1-fast-small/WIN1-MOT/seed-1"]  # fmt: skip
+    assert run.seed == 4 and run.preset == "fast-small" and run.agent.batch_size == 32
+    assert run.schedule.budget_cpu_s == 20.0 and run.schedule.stop_at == "best-bot"
+    assert run.env.track_pos_weight == 0 and run.demos is None
+    assert planner.run_spec(1, "SAC", 0).demos.laps == 2
+    assert [b.spec["reference"] for b in planner.baselines(0)] == ["centre", "mincurv"]
 
 
-def test_milestones_first_round_below_each_limit() -> None:
-    limits = ttc.thresholds(35.4, 34.7)
-    hits = ttc.milestones(TABLE, "oval", limits, CPU, cpu_total=99.0)
-    assert hits["first_clean_lap"] == {"episode": 15, "env_steps": 15000, "lap_s": 35.8,
-                                       "cpu_s": 30.0}  # fmt: skip
-    assert hits["beat_centre_bot"]["episode"] == 20 and hits["beat_centre_bot"]["cpu_s"] == 40.0
-    assert hits["beat_mincurv_bot"]["episode"] == 30
-    assert hits["beat_mincurv_bot"]["lap_s"] == pytest.approx(34.5)
-    assert ttc.best_clean_lap(TABLE, "oval") == pytest.approx(34.5)
+def test_seeds_are_consecutive_and_entrants_are_pairs() -> None:
+    assert ttc.parse_seeds("2,0,1") == [0, 1, 2]
+    for bad in ("", "0,2"):
+        with pytest.raises(SystemExit):
+            ttc.parse_seeds(bad)
+    assert ttc.parse_entrants("WIN1:best, SAC:best,") == [("WIN1", "best"), ("SAC", "best")]
+    for bad in ("WIN1", "WIN1:best,WIN1:best", "", ":best"):
+        with pytest.raises(SystemExit):
+            ttc.parse_entrants(bad)
+    assert ttc.parse_overrides(["batch_size=32", "algorithm=sac"]) == {
+        "batch_size": 32, "algorithm": "sac"}  # fmt: skip
 
 
-def test_milestones_missed_and_other_tracks_ignored() -> None:
-    early = TABLE[TABLE["episode"] <= 20]
-    other = _tests([(5, [(30.0, 0.0)] * 3)], track="technical")
-    hits = ttc.milestones(pd.concat([early, other]), "oval", ttc.thresholds(35.4, 34.7), CPU, 0.0)
-    assert hits["beat_centre_bot"]["episode"] == 20 and hits["beat_mincurv_bot"] is None
-    empty = ttc.milestones(TABLE.iloc[:0], "oval", ttc.thresholds(35.4, 34.7), {}, 0.0)
-    assert empty == dict.fromkeys(ttc.MILESTONES)
-    assert math.isnan(ttc.best_clean_lap(TABLE.iloc[:0], "oval"))
+def test_the_anchor_stops_at_the_best_bot_unless_it_trains_to_the_budget() -> None:
+    assert ttc.stop_lap_s(BOTS, to_budget=False) == 34.7
+    assert ttc.stop_lap_s(BOTS, to_budget=True) == -math.inf  # no lap ends it
 
 
-def test_round_without_cpu_reading_takes_the_total() -> None:
-    hits = ttc.milestones(TABLE, "oval", ttc.thresholds(35.4, 34.7), {15: 30.0}, cpu_total=77.0)
-    assert hits["first_clean_lap"]["cpu_s"] == 30.0
-    assert hits["beat_mincurv_bot"]["cpu_s"] == 77.0
-
-
-def test_demonstrator_lap_tightens_the_bot_milestones() -> None:
-    limits = ttc.thresholds(35.4, 34.7, demo_lap_s=35.0)
-    assert limits == {"first_clean_lap": math.inf, "beat_centre_bot": 35.0,
-                      "beat_mincurv_bot": 34.7}  # fmt: skip
-    hits = ttc.milestones(TABLE, "oval", limits, CPU, 0.0)
-    assert hits["beat_centre_bot"]["episode"] == 25  # 35.1 at round 20 beats the bot, not the demo
-    assert ttc.thresholds(35.4, 34.7, None) == ttc.thresholds(35.4, 34.7, NAN)
-
-
-def test_a_run_stops_at_the_best_bot_unless_it_trains_to_the_budget() -> None:
-    task = {"bots": {"centre_s": 35.4, "mincurv_s": 34.7}}
-    assert ttc.stop_lap_s(task) == 34.7
-    assert ttc.stop_lap_s(task, demo_lap_s=34.2) == 34.2  # with demos: past the demonstrator
-    assert ttc.stop_lap_s({**task, "to_budget": True}) == -math.inf  # no lap ends it
-
-
-def test_clean_start_rate_from_the_first_clean_lap_on() -> None:
-    # rounds 15..30: >= 2 clean starts in 15, 20, 30; not in 25 -> 3/4
-    assert ttc.clean_start_rate(TABLE, "oval", 15) == pytest.approx(0.75)
-    assert ttc.clean_start_rate(TABLE, "oval", 30) == 1.0
-    assert ttc.clean_start_rate(TABLE, "oval", None) is None
-    assert ttc.clean_start_rate(TABLE, "oval", 35) is None
-
-
-def test_medians_count_misses_as_infinite() -> None:
-    assert ttc.median_inf([10.0, None, 30.0]) == 30.0
-    assert ttc.median_inf([10.0, 20.0, None, None]) == math.inf
-    assert ttc.median_inf([10.0, 20.0, 40.0, None]) == 30.0
-    assert ttc.median_inf([NAN]) == math.inf and ttc.median_inf([]) == math.inf
+def test_ratios_and_finite_numbers() -> None:
     assert ttc.finite(math.inf) is None and ttc.finite(12.34) == 12.3
     assert ttc.ratio(30.0, 60.0) == 0.5
     assert ttc.ratio(30.0, math.inf) == 0.0 and ttc.ratio(math.inf, 60.0) is None
@@ -118,15 +96,10 @@ def _run(a: float | None, b: float | None, c: float | None, best: float | None,
             "best_lap_to_limit": best, "clean_start_rate": rate}  # fmt: skip
 
 
-def test_summary_and_goal_flags() -> None:
+def test_goal_flags() -> None:
     runs = [_run(5.0, 40.0, 200.0, 1.01, 1.0), _run(8.0, 50.0, None, 1.03, 0.5),
             _run(9.0, 70.0, 250.0, 1.015, 1.0), _run(None, None, None, None, None)]  # fmt: skip
-    s = ttc.summarise(runs)
-    assert s["median_first_clean_lap_cpu_s"] == 8.5 and s["reached_first_clean_lap"] == 3
-    assert s["median_beat_centre_bot_cpu_s"] == 60.0
-    assert s["median_beat_mincurv_bot_cpu_s"] == math.inf and s["reached_beat_mincurv_bot"] == 2
-    assert s["median_best_lap_to_limit"] == pytest.approx(1.0225)
-    assert s["median_clean_start_rate"] == 0.75  # the seed without a clean lap counts 0
+    s = summarise(runs)
     ratios = {"first_clean_lap": 0.2, "beat_centre_bot": 0.6, "beat_mincurv_bot": None}
     oval = ttc.goal_flags("oval", s, ratios)
     assert oval == {"beat_centre_bot_cpu_s": True, "beat_mincurv_bot_cpu_s": False,
@@ -138,32 +111,15 @@ def test_summary_and_goal_flags() -> None:
     assert ttc.goal_flags("gen-5", s, None) is None
 
 
-def test_parse_entrants() -> None:
-    assert ttc.parse_entrants("WIN1:best, SAC:best,") == [("WIN1", "best"), ("SAC", "best")]
-    for bad in ("WIN1", "WIN1:best,WIN1:best", "", ":best"):
-        with pytest.raises(SystemExit):
-            ttc.parse_entrants(bad)
-    assert ttc.parse_overrides(["batch_size=32", "algorithm=sac"]) == {
-        "batch_size": 32, "algorithm": "sac"}  # fmt: skip
-
-
-def test_learning_curve_lists_every_round_with_its_clean_lap() -> None:
-    curve = ttc.learning_curve(TABLE, "oval", CPU, cpu_total=99.0)
-    assert [c["episode"] for c in curve] == [5, 10, 15, 20, 25, 30]
-    assert [c["clean_lap_s"] for c in curve] == [None, None, 35.8, 35.1, 34.9, 34.5]
-    assert [c["cpu_s"] for c in curve] == [10.0, 20.0, 30.0, 40.0, 50.0, 60.0]
-    late = ttc.learning_curve(TABLE, "oval", {5: 10.0}, cpu_total=99.0)
-    assert [c["cpu_s"] for c in late] == [10.0, 99.0, 99.0, 99.0, 99.0, 99.0]
-
-
 NO_LAP = {"episode": 5, "cpu_s": 1.0, "clean_lap_s": None}
 
 
 def test_plot_curves_writes_a_png_and_a_pdf(tmp_path) -> None:
-    curve = ttc.learning_curve(TABLE, "oval", CPU, cpu_total=99.0)
+    run = _curve_run()
+    assert run["cpu_s"] == {"first_clean_lap": 20.0, "beat_centre_bot": 30.0,
+                            "beat_mincurv_bot": 30.0}  # fmt: skip
     result = {"track": "oval", "reference": "centre", "lac": False, "seeds": [0],
-              "bots": {"centre_s": 35.4, "mincurv_s": 34.7, "reference_limit_s": 33.8},
-              "entrants": [{"label": "WIN1:tuned", "runs": [{"curve": curve}]}],
+              "bots": vars(BOTS), "entrants": [{"label": "WIN1:tuned", "runs": [run]}],
               "sb3": {"label": "SB3 SAC", "runs": [{"curve": [NO_LAP]}]}}  # fmt: skip
     paths = ttc.plot_curves(result, tmp_path / "curves")
     assert sorted(p.name for p in paths) == ["curves.pdf", "curves.png"]
@@ -173,13 +129,13 @@ def test_plot_curves_writes_a_png_and_a_pdf(tmp_path) -> None:
 def test_a_failed_run_is_summarised_and_plotted_as_a_run_that_reached_nothing(tmp_path) -> None:
     """A seed whose worker raised keeps the others: its record counts as misses in the medians
     and draws nothing (it once stopped the plot, and with it the benchmark's JSON line)."""
-    failed = ttc.run_job({"kind": "ours", "label": "WIN1:tuned", "seed": 3, "spec": {}})
+    failed = ttc.run_job({"label": "SB3", "seed": 3, "spec": {}, "bots": vars(BOTS),
+                          "budget_cpu_s": 1.0})  # fmt: skip
     assert failed["error"].startswith("UserInputError") and failed["curve"] == []
-    assert ttc.summarise([failed])["reached_first_clean_lap"] == 0
-    curve = ttc.learning_curve(TABLE, "oval", CPU, cpu_total=99.0)
+    assert summarise([failed])["reached_first_clean_lap"] == 0
     result = {"track": "oval", "reference": "centre", "lac": False, "seeds": [0, 3],
-              "bots": {"centre_s": 35.4, "mincurv_s": 34.7, "reference_limit_s": 33.8},
-              "entrants": [{"label": "WIN1:tuned", "runs": [{"curve": curve}, failed]}],
+              "bots": vars(BOTS),
+              "entrants": [{"label": "WIN1:tuned", "runs": [_curve_run(), failed]}],
               "sb3": None}  # fmt: skip
     assert [p.name for p in ttc.plot_curves(result, tmp_path / "c")] == ["c.png", "c.pdf"]
 

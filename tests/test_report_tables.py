@@ -16,6 +16,7 @@ from report_fixtures import (
 
 from formula_tourney.errors import UserInputError
 from formula_tourney.report import paper_tables, render
+from formula_tourney.report.competence_table import competence_table
 from formula_tourney.report.load import TournamentData, load_tournament, resolve_tournament
 from formula_tourney.report.paper_tables import LIMIT_LABEL, Context, build_tables
 from formula_tourney.report.table_model import ReportTable
@@ -180,6 +181,12 @@ def test_empty_part_and_empty_tournament_render(results: Path) -> None:
         assert "no jobs" in render.render_markdown(built[0])
         doc = render.latex_document(built, "x", data.problems)
         assert doc.rstrip().endswith("\\end{document}")
+
+
+def test_no_time_to_competence_table_without_a_cpu_budget(data: TournamentData) -> None:
+    """The fixture's runs have no budget_cpu_s and their tests no cpu_s: the table stays off
+    (tests/test_competence.py builds one from a part with a budget)."""
+    assert competence_table(Context.build(data)).empty
 
 
 def test_unreadable_files_become_problems(tmp_path: Path) -> None:

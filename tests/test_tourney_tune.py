@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import math
 import tomllib
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -186,21 +185,17 @@ def test_search_values_are_built_into_run_specs_before_the_study(tmp_path: Path)
 
 
 # --- CPU-seconds to competence ([objective]) ------------------------------------------------
-def _scripted(cpu: list[float]) -> Callable[[], float]:
-    """A clock that reads 0 at the start of training, then the given CPU-seconds in turn."""
-    ticks = iter([0.0, *cpu])
-    return lambda: next(ticks)
-
-
 def test_cpu_objective_arithmetic_on_a_scripted_run() -> None:
     """The value is the CPU-s of the first episode whose best_lap_s is below the threshold
     (strictly); a miss scores budget x penalty_factor; the pruner's sequence never rises."""
     beat = Objective(kind="cpu_s_to_beat_follower", budget_cpu_s=100.0, penalty_factor=3.0)
-    clock = CpuMilestone(beat, threshold_s=35.0, clock=_scripted([10.0, 20.0, 30.0, 40.0, 55.5]))
+    clock = CpuMilestone(beat, threshold_s=35.0)
     laps = [None, 41.2, 35.0, 35.0, 34.9]  # 35.0 ties the follower: not beaten
+    cpu = [10.0, 20.0, 30.0, 40.0, 55.5]
     stops, projected = [], []
-    for episode, lap in enumerate(laps, start=1):
-        stops.append(clock.update({"episode": episode, "best_lap_s": lap, "env_steps": 100}))
+    for episode, (lap, cpu_s) in enumerate(zip(laps, cpu, strict=True), start=1):
+        stops.append(clock.update({"episode": episode, "best_lap_s": lap, "env_steps": 100,
+                                   "cpu_s": cpu_s}))
         projected.append(clock.projected())
     assert stops == [False, False, False, False, True]
     assert clock.value() == 55.5 and clock.hit == {"cpu_s": 55.5, "episode": 5, "lap_s": 34.9,
@@ -212,13 +207,14 @@ def test_cpu_objective_arithmetic_on_a_scripted_run() -> None:
 
     # the first clean lap: any finite lap; a miss when the budget passes first
     first = Objective(kind="cpu_s_to_first_clean_lap", budget_cpu_s=25.0)
-    clock = CpuMilestone(first, threshold_s=math.inf, clock=_scripted([12.0, 26.0]))
-    assert clock.update({"episode": 1, "best_lap_s": None}) is False
-    assert clock.update({"episode": 2, "best_lap_s": 80.0}) is True  # lapped, but past budget
+    clock = CpuMilestone(first, threshold_s=math.inf)
+    assert clock.update({"episode": 1, "best_lap_s": None, "cpu_s": 12.0}) is False
+    assert clock.update({"episode": 2, "best_lap_s": 80.0, "cpu_s": 26.0}) is True  # too late
     assert clock.hit is None and clock.value() == 50.0 and clock.step() == 100
     assert set(clock.series().values()) == {50.0}
-    clock = CpuMilestone(first, threshold_s=math.inf, clock=_scripted([3.25]))
-    assert clock.update({"episode": 1, "best_lap_s": 80.0}) and clock.value() == 3.25
+    clock = CpuMilestone(first, threshold_s=math.inf)
+    assert clock.update({"episode": 1, "best_lap_s": 80.0, "cpu_s": 3.25})
+    assert clock.value() == 3.25
 
 
 def test_median_pruner_cuts_a_trial_behind_on_cpu_seconds() -> None:
@@ -231,16 +227,16 @@ def test_median_pruner_cuts_a_trial_behind_on_cpu_seconds() -> None:
     study = optuna.create_study(pruner=optuna.pruners.MedianPruner(n_startup_trials=3))
     for hit in (20.0, 30.0, 90.0):
         trial = study.ask()
-        clock = CpuMilestone(first, math.inf, clock=_scripted([hit]))
-        clock.update({"episode": 1, "best_lap_s": 50.0})
+        clock = CpuMilestone(first, math.inf)
+        clock.update({"episode": 1, "best_lap_s": 50.0, "cpu_s": hit})
         for step, value in clock.series().items():
             trial.report(value, step)
         study.tell(trial, clock.value())
     trial = study.ask()
-    clock = CpuMilestone(first, math.inf, clock=_scripted([25.0, 35.0]))
+    clock = CpuMilestone(first, math.inf)
     verdicts = []
-    for _ in range(2):
-        clock.update({"episode": 1, "best_lap_s": None})
+    for cpu_s in (25.0, 35.0):
+        clock.update({"episode": 1, "best_lap_s": None, "cpu_s": cpu_s})
         trial.report(clock.projected(), clock.step())
         verdicts.append(trial.should_prune())
     assert verdicts == [False, True]

@@ -17,6 +17,7 @@ from formula_tourney.report.claims import evaluate_all
 from formula_tourney.report.claims_load import resolve_claims
 from formula_tourney.report.claims_plots import make_claim_figures
 from formula_tourney.report.claims_table import claims_table
+from formula_tourney.report.competence_table import competence_table
 from formula_tourney.report.cost import cost_table
 from formula_tourney.report.grip_table import grip_table
 from formula_tourney.report.html import render_page
@@ -131,6 +132,9 @@ def build_report(tournament: str | None = None, results_dir: str | Path = "resul
     grips = grip_table(ctx)
     if not grips.empty:  # only a study that tested at several grips has one
         tables.append(grips)
+    competence = competence_table(ctx)
+    if not competence.empty:  # only parts with a CPU budget (budget_cpu_s) have one
+        tables.append(competence)
     claim_results = evaluate_all(ctx, declared[0]) if declared is not None else []
     if declared is not None:
         tables.append(claims_table(claim_results, declared[1]))

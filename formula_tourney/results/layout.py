@@ -69,7 +69,7 @@ JOB_TABLES: dict[str, list[str]] = {
     "tests": [
         "episode", "env_steps", "track", "start_s_m", "finished", "best_lap_s", "laps", "damage",
         "reward", "steps", "termination", "checkpoint", "distance_m", "grip_scale",
-        "reference_limit_s",
+        "reference_limit_s", "cpu_s",
     ],
     "laps": [
         "episode", "track", "start_s_m", "lap_index", "lap_time_s", "lap_damage", "clean",
@@ -79,12 +79,14 @@ JOB_TABLES: dict[str, list[str]] = {
 """Columns of each job table, in order (docs/CONTRACTS.md, "training (one run)")."""
 
 ADDED_COLUMNS: dict[str, tuple[str, ...]] = {
-    "tests": ("grip_scale", "reference_limit_s"),
+    "tests": ("grip_scale", "reference_limit_s", "cpu_s"),
     "laps": ("grip_scale",),
 }
-"""Columns added within layout 2 (grip as an axis), which files written before them
-lack: a test then ran at its run's env ``grip_scale``, and its reference limit was not stored
-(nan). ``results.folder.JobFolder`` fills them in when it reads such a file."""
+"""Columns added within layout 2, which files written before them lack: a test then ran at its
+run's env ``grip_scale`` (grip as an axis, docs/report.md), its reference limit was not stored
+(nan), nor the CPU-seconds the run had spent when the test round ended (``cpu_s``, nan; time to
+competence, ``results.competence``). ``results.folder.JobFolder`` fills them in when it reads
+such a file."""
 
 TRACE_COLUMNS = [
     "time_s", "distance_m", "s_m", "lateral_m", "x_m", "y_m", "speed_kmh", "steer", "throttle",

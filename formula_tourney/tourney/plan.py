@@ -325,7 +325,8 @@ class Planner:
                 "seeds": seeds,
                 **{k: schedule.get(k) for k in ("episodes", "env_steps", "max_steps",
                                                 "test_every_episodes", "test_starts",
-                                                "test_max_steps", "test_grip_scales")},
+                                                "test_max_steps", "test_grip_scales",
+                                                "budget_cpu_s", "stop_at")},
                 "env_overrides": run.env.overrides() if run is not None else {},
                 # a variant entry's demos/cars/env_steps/preset win over the part's: show them
                 "entrant_settings": {v: to_jsonable_python(own) for v in variants

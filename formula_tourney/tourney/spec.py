@@ -192,6 +192,8 @@ class JobSettings(_Strict):
     test_grip_scales: _unset_or(Schedule, "test_grip_scales") = None
     cars: _unset_or(Schedule, "cars") = None
     traffic_bots: _unset_or(Schedule, "traffic_bots") = None
+    budget_cpu_s: _unset_or(Schedule, "budget_cpu_s") = None
+    stop_at: _unset_or(Schedule, "stop_at") = None
     demos: DemoSettings | None = Field(
         None, description="Demonstrations for every entrant here (beyond the paper)."
     )
@@ -214,7 +216,7 @@ class JobSettings(_Strict):
     @field_validator("env_overrides", mode="before")
     @classmethod
     def _not_run_owned(cls, value: Any) -> Any:
-        """An env key the run sets itself would silently fight the setup (issue 10, item 2)."""
+        """An env key the run sets itself would silently fight the setup."""
         if isinstance(value, Mapping):
             owned = [k for k in value if k in RUN_OWNED_KEYS]
             if owned:
@@ -661,6 +663,8 @@ def check_references(spec: Tournament, path: Path, text: str) -> None:
         ):
             raise error_at(path, text, ("parts", index, "selection", "kind"),
                            "'general' needs test_tracks that are not train tracks")
+        if part.kind == "train":
+            check_competence(spec, index, path, text)
     for name, entry in spec.variants.items():
         if entry.base is not None and entry.base not in ALL_VARIANTS and entry.base not in (
             spec.variants
@@ -668,6 +672,37 @@ def check_references(spec: Tournament, path: Path, text: str) -> None:
             raise error_at(path, text, ("variants", name, "base"),
                            f"unknown base variant {entry.base!r}; allowed values: "
                            f"{', '.join(ALL_VARIANTS)}")
+
+
+COMPETENCE_BOTS = ("centre", "mincurv")
+"""The follower's lines a part with a CPU budget races as baselines: its time-to-competence
+table (``report.competence_table``) times the runs until they beat each."""
+
+
+def check_competence(spec: Tournament, index: int, path: Path, text: str) -> None:
+    """A part's competence keys: ``stop_at`` needs a ``budget_cpu_s`` (a run that never beats
+    the bot must still end), and a budget needs the follower's baselines on the centre and
+    min-curvature lines, the bots its milestones are set by."""
+    part = spec.parts[index]
+    settings = spec.settings(part)
+
+    def where(key: str) -> tuple[Any, ...]:
+        return ("parts", index, key) if getattr(part, key) is not None else ("defaults", key)
+
+    if settings["stop_at"] not in (None, "none") and settings["budget_cpu_s"] is None:
+        raise error_at(path, text, where("stop_at"),
+                       f"stop_at = {settings['stop_at']!r} needs budget_cpu_s (the CPU-seconds "
+                       "a run may spend before it stops without reaching the bot)")
+    if settings["budget_cpu_s"] is None:
+        return
+    raced = {b.reference for b in part.baselines if b.bot == "follower"}
+    missing = [line for line in COMPETENCE_BOTS if line not in raced]
+    if missing:
+        wanted = ", ".join(f'{{bot = "follower", reference = "{line}"}}' for line in missing)
+        raise error_at(path, text, where("budget_cpu_s"),
+                       "a CPU budget times the runs until they beat the follower on the "
+                       f"{' and '.join(COMPETENCE_BOTS)} lines: add baselines = [{wanted}] "
+                       f"to part {part.name!r}")
 
 
 def entrant_name(variant: str, setup: Setup) -> str:

@@ -3,20 +3,19 @@
 A trial is one training job (``tourney.runner.run_job``) whose run specification is the tune
 file's ``[train]`` with the trial's hyperparameters (``tourney.tune_spec.trial_spec``). The
 objective (``[objective] kind``) is the best clean test lap on the key track, or the CPU-seconds
-of training to a milestone (:class:`CpuMilestone`); each periodic test reports to the pruner,
-and a pruned trial stops its run at once (``train``'s progress returns False).
+of training to a milestone (:class:`CpuMilestone`, on the training loop's CPU clock; the trial's
+schedule carries the objective's ``budget_cpu_s``, so the loop ends it there as it ends any run
+with a CPU budget, ``training.budget``); each periodic test reports to the pruner, and a pruned
+trial stops its run at once (``train``'s progress returns False).
 """
 
 from __future__ import annotations
 
 import math
 import os
-import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import optuna
 from optuna.study import MaxTrialsCallback
 from optuna.trial import TrialState
@@ -42,8 +41,9 @@ PRUNE_STEPS = 100
 class CpuMilestone:
     """The arithmetic of a CPU-second objective, fed the training loop's progress dicts.
 
-    ``clock`` (``time.process_time``: this process's CPU time, every thread) is read when the
-    object is made, at the start of training, and after every episode. The milestone is reached
+    Each dict's ``cpu_s`` is the run's CPU-seconds since training started, on the loop's clock
+    (``training.budget.CpuClock``: this process's CPU time, every thread), which also times
+    the tests in ``tests.parquet`` and stops a run at its ``budget_cpu_s``. The milestone is reached
     at the first episode whose ``best_lap_s`` (the model's clean lap on the key track so far,
     which changes only at the periodic tests) is below ``threshold_s``: ``math.inf`` for the
     first clean lap, the follower's lap to beat it. Its value is the CPU-seconds then, if within
@@ -60,24 +60,21 @@ class CpuMilestone:
     complete trials had reached theirs with that much CPU.
     """
 
-    def __init__(self, objective: Objective, threshold_s: float,
-                 clock: Callable[[], float] = time.process_time) -> None:  # fmt: skip
+    def __init__(self, objective: Objective, threshold_s: float) -> None:
         if not objective.cpu or objective.budget_cpu_s is None:
             raise ValueError(f"{objective.kind} is not a CPU-second objective with a budget")
         self.budget_cpu_s = float(objective.budget_cpu_s)
         self.miss_s = objective.miss_score()
         self.threshold_s = float(threshold_s)
-        self._clock = clock
-        self._t0 = clock()
         self.cpu_s = 0.0
         """CPU-seconds of training at the last progress call."""
         self.hit: dict[str, float] | None = None
         """cpu_s, episode, lap_s and env_steps of the episode that reached the milestone."""
 
     def update(self, info: dict[str, Any]) -> bool:
-        """Read the clock after an episode; True when the trial should stop (milestone reached,
-        or the budget spent)."""
-        self.cpu_s = self._clock() - self._t0
+        """Take an episode's progress; True when the trial should stop (milestone reached, or
+        the budget spent)."""
+        self.cpu_s = float(info["cpu_s"])
         lap = info.get("best_lap_s")
         if (self.hit is None and lap is not None and math.isfinite(float(lap))
                 and float(lap) < self.threshold_s and self.cpu_s <= self.budget_cpu_s):
@@ -104,20 +101,6 @@ class CpuMilestone:
         return {s: self.hit["cpu_s"] if s >= at else self.miss_s for s in range(PRUNE_STEPS + 1)}
 
 
-def warm_up(run: Any) -> None:
-    """Build and step the run's env once before the clock starts (torch, the track, its line
-    and the numba kernels load here), so a worker's first trial pays no more than its later
-    ones."""
-    import formula_tourney.training.loop  # noqa: F401  (torch)
-    from formula_tourney.training.envs import RunEnvs
-
-    env = RunEnvs(run).make(run.key_track, test=False)
-    env.reset(seed=0)
-    for _ in range(3):
-        env.step(np.array([0.0, 0.5, 0.0], np.float32))
-    env.close()
-
-
 def objective(trial: Any, spec: TuneSpec, variant: str, trial_root: Path, base_dir: Path,
               threshold_s: float | None = None) -> float:
     """Train one trial; its value is the best clean test lap (or the no-finish penalty), or
@@ -128,6 +111,9 @@ def objective(trial: Any, spec: TuneSpec, variant: str, trial_root: Path, base_d
     out_dir = trial_root / f"trial-{trial.number}"
     job_id = f"tune/{variant}/trial-{trial.number}"
     run = trial_spec(spec, variant, params, base_dir, job_id)
+    if spec.objective.cpu:  # the loop ends the trial at its budget, as any CPU-budget run
+        schedule = run.schedule.model_copy(update={"budget_cpu_s": spec.objective.budget_cpu_s})
+        run = run.model_copy(update={"schedule": schedule})
     job = Job(job_id=job_id, kind="train", part="tune", out_dir=str(out_dir), spec=run.to_json(),
               config_hash=run.digest(), meta={"variant": variant, "trial": trial.number,
                                               "part": "tune"})  # fmt: skip
@@ -167,8 +153,7 @@ def _cpu_objective(trial: Any, spec: TuneSpec, run: Any, job: Job, out_dir: Path
     projected value at every test (and at the stop), and the whole series when complete."""
     every = run.schedule.test_every_episodes
     episodes = run.schedule.episodes
-    warm_up(run)
-    clock = CpuMilestone(spec.objective, threshold_s)  # the clock starts here
+    clock = CpuMilestone(spec.objective, threshold_s)
     reported: set[int] = set()
     pruned: list[str] = []
 

@@ -10,10 +10,12 @@ car's own exploration noise), steps the cars through a collector (``training.col
 or ``schedule.cars`` cars of the vector env, each into its own lane of the one buffer), then
 earns ``agent.updates_per_step`` updates per stored transition once learning has started and
 spends them. Each finished car-episode is one ``episodes.parquet`` row, and the tests and the
-progress callback follow the count of finished car-episodes. With ``spec.demos`` the follower's
-laps (``training.demos``) fill a demonstration buffer before the first step, the actor may be
-warm-started on them by behaviour cloning, and every batch draws its share of rows from them
-(``agents.replay.DemoMix``).
+progress callback follow the count of finished car-episodes. Every test row records the
+CPU-seconds the run had spent when its round ended (``cpu_s``, ``training.budget.CpuClock``), and
+a schedule's ``budget_cpu_s`` or ``stop_at`` ends the run (``training.budget.StopRule``). With
+``spec.demos`` the follower's laps (``training.demos``) fill a demonstration buffer before the
+first step, the actor may be warm-started on them by behaviour cloning, and every batch draws its
+share of rows from them (``agents.replay.DemoMix``).
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from formula_tourney.agents.replay import DemoMix, make_buffer
 from formula_tourney.results.folder import JobFolder
 from formula_tourney.results.layout import BEST_CHECKPOINT, LAST_CHECKPOINT
 from formula_tourney.results.metrics import model_clean_lap_s
+from formula_tourney.training.budget import CpuClock, StopRule
 from formula_tourney.training.collect import (
     RewardRule,
     SingleCarCollector,
@@ -75,13 +78,17 @@ def train(
 ) -> dict[str, Any]:
     """Train ``spec`` and write its job folder under ``out_dir``; returns the summary.
 
-    ``progress(dict(episode=, episodes=, best_lap_s=, env_steps=, updates=, seconds=))`` is called
-    after each finished (car-)episode; if it returns ``False`` the run stops early (time budgets,
-    benchmarks) and still writes its summary. ``env_steps`` counts stored transitions (car-steps)
-    over all cars. Raises DivergedError on NaN losses.
+    ``progress(dict(episode=, episodes=, best_lap_s=, env_steps=, updates=, seconds=, cpu_s=))``
+    is called after each finished (car-)episode; if it returns ``False`` the run stops early
+    (pruned trials) and still writes its summary, as it does when its :class:`StopRule` says so.
+    ``env_steps`` counts stored transitions (car-steps) over all cars; ``cpu_s`` the CPU-seconds
+    since training started. Raises DivergedError on NaN losses.
     """
     agent_cfg = spec.agent
     schedule = spec.schedule
+    stop_rule = StopRule.of(spec)  # drives the bot to beat and warms up: before the clock
+    clock = CpuClock()
+    clock.start()
     envs = RunEnvs(spec)
     folder = JobFolder(out_dir)
     out = folder.path
@@ -141,6 +148,7 @@ def train(
         if spec.demos.bc_weight > 0.0:  # RunSpec checked that every batch has demo rows
             bc_loss = BCLoss(spec.demos.bc_weight, mix.demo_rows, spec.demos.bc_q_filter)
         demo_seconds = time.perf_counter() - t_demo
+        stop_rule = stop_rule.with_demonstrator(demo_summary.get("lap_s"))
 
     out.mkdir(parents=True, exist_ok=True)
     spec_json = spec.to_json()
@@ -163,6 +171,8 @@ def train(
 
     def run_tests() -> None:
         nonlocal best_key_lap
+        round_rows = [test_table, grip_test_table]
+        first_rows = [len(rows) for rows in round_rows]
         ckpt_rel = ""
         if schedule.save_test_checkpoints:
             ckpt_rel = folder.checkpoint_rel(f"ep-{episode}.pt")
@@ -201,6 +211,10 @@ def train(
                     extra={"episode": episode, "best_lap_s": best_here, "track": name,
                            "run_spec": spec_json},
                 )  # fmt: skip
+        cpu_s = clock.seconds()  # the round's CPU-seconds: what its milestones are timed at
+        for rows, first in zip(round_rows, first_rows, strict=True):
+            for row in rows[first:]:
+                row["cpu_s"] = cpu_s
         # last.pt is refreshed at every test (a crashed run can still be inspected) and at the end
         save_checkpoint(
             agent,
@@ -249,6 +263,7 @@ def train(
             buffer, agent_cfg.window, reward_rule,
         )  # fmt: skip
     stopped_early = False
+    stopped_by: str | None = None
     epsilon = 1.0
     samples_its_policy = not agent_cfg.uses_action_noise  # decided once, not every step
     last = False
@@ -283,14 +298,19 @@ def train(
             last = budget_spent or episode == schedule.episodes
             if episode % schedule.test_every_episodes == 0 or last:
                 run_tests()
+            cpu_s = clock.seconds()
             if progress is not None:
                 answer = progress({
                     "episode": episode, "episodes": schedule.episodes,
                     "best_lap_s": _nan_to_none(best_key_lap), "env_steps": env_steps,
                     "updates": agent.updates, "seconds": time.perf_counter() - t0,
+                    "cpu_s": cpu_s,
                 })  # fmt: skip
                 if answer is False:
-                    stopped_early = True
+                    stopped_early, stopped_by = True, "progress"
+            if not stopped_early and stop_rule.active:
+                stopped_by = stop_rule.reason(best_key_lap, cpu_s)
+                stopped_early = stopped_by is not None
             if stopped_early or last:
                 break
     if stopped_early and not test_table:
@@ -314,8 +334,11 @@ def train(
         "env_steps": env_steps,
         "updates": agent.updates,
         "seconds": time.perf_counter() - t0,
+        "cpu_s": clock.seconds(),
         "stopped_early": stopped_early,
     }
+    if stopped_by is not None:
+        summary["stopped_by"] = stopped_by
     if demo_summary is not None:  # who demonstrated: the report's "with demos" label needs it
         summary["demos"] = demo_summary
     folder.write_summary(summary)

@@ -93,6 +93,22 @@ class Schedule(_Frozen):
         "best checkpoint, promotion and the paper's tables read) and then at each of these; "
         "the tests table records each drive's grip and the reference limit at that grip.",
     )
+    budget_cpu_s: float | None = Field(
+        None,
+        gt=0,
+        le=10**7,
+        description="CPU-second budget: the run stops at the first finished episode after its "
+        "process has spent this many CPU-seconds (time.process_time) since training started, "
+        "without a further test round. CPU time, unlike wall time, does not grow with the "
+        "other jobs sharing the machine. None: no CPU budget.",
+    )
+    stop_at: Literal["none", "best-bot"] = Field(
+        "none",
+        description="A lap that ends the run early: best-bot stops it after the first test "
+        "round whose clean lap on the key track beats the follower bot on the min-curvature "
+        "line (the best bot; with demonstrations also the demonstrator's lap); none: no lap "
+        "does.",
+    )
 
     @field_validator("test_grip_scales")
     @classmethod
@@ -332,7 +348,8 @@ def _problems(err: ValidationError) -> str:
 NEWER_THAN_LAYOUT_2: dict[str, tuple[str, ...]] = {
     "agent": ("crash_penalty", "epsilon_floor", "eval_ema_updates"),
     "env": ("grip_scale_range", "grip_drying", "track_pos_weight", "progress_reward"),
-    "schedule": ("cars", "env_steps", "traffic_bots", "test_grip_scales"),
+    "schedule": ("cars", "env_steps", "traffic_bots", "test_grip_scales", "budget_cpu_s",
+                 "stop_at"),
     "demos": ("bc_weight", "bc_q_filter"),  # newer than the demonstrations themselves
 }
 """The settings :meth:`RunSpec.to_json` leaves out while at their defaults, by spec section."""
