@@ -264,7 +264,7 @@ def bot_figures(track_name: str, car_overrides: dict[str, Any] | None = None) ->
     """The follower's best lap on the centre and on the min-curvature line, and the limit, for
     the runs' own car (``--env-set car=...``): a bot in another car is no anchor."""
     from formula_tourney.bots.follower import drive
-    from formula_tourney.bots.reference import reference_offsets
+    from formula_tourney.bots.line_offsets import reference_offsets
     from formula_tourney.lines.limit import reference_limit_s
     from formula_tourney.sim.car_params import CarParams
     from formula_tourney.sim.catalog import load_track

@@ -9,7 +9,7 @@ algorithm version, so a changed track, car or algorithm never reads a stale line
 
 The recorded and genetic lines need a driver (the follower bot). ``lines`` sits below ``bots``
 (imports go downward), so the driver is an argument here, required for those two kinds;
-``bots.reference.reference_offsets(track, kind, car)`` is the same call with the follower passed
+``bots.line_offsets.reference_offsets(track, kind, car)`` is the same call with the follower passed
 in, and is what training, tournaments and the CLI use.
 """
 
@@ -100,7 +100,7 @@ def reference_offsets(
     """Lateral offsets (one per track sample) of the reference line ``kind`` on ``track``.
 
     ``driver`` drives the recorded and genetic lines (pass ``bots.follower.drive``, or call
-    ``bots.reference.reference_offsets``); a cached line is returned without driving.
+    ``bots.line_offsets.reference_offsets``); a cached line is returned without driving.
     """
     check_kind(kind)
     if kind == "centre":
@@ -108,7 +108,7 @@ def reference_offsets(
     if kind in DRIVEN_KINDS and driver is None:
         raise TypeError(
             f"the {kind} line is made by driving: pass driver= (bots.follower.drive), or call "
-            "formula_tourney.bots.reference.reference_offsets"
+            "formula_tourney.bots.line_offsets.reference_offsets"
         )
     car = car or CarParams()
     path = cache_path(track, kind, car)

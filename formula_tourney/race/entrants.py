@@ -14,11 +14,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from formula_tourney.bots.follower import Follower
-from formula_tourney.bots.reference import reference_offsets
+from formula_tourney.bots.line_offsets import reference_offsets
 from formula_tourney.errors import UserInputError
 from formula_tourney.race.drivers import BotDriver, Driver, ModelDriver
-from formula_tourney.sim import race_kernels as RK
 from formula_tourney.sim.config import EnvConfig, EnvSettings
+from formula_tourney.sim.multicar import lockstep_kernels as RK
 from formula_tourney.sim.sensors import observation_names
 from formula_tourney.sim.track import Track
 from formula_tourney.training.checkpoint import load_run_checkpoint

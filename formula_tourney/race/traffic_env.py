@@ -27,11 +27,11 @@ from gymnasium import spaces
 from formula_tourney.errors import UserInputError
 from formula_tourney.race.entrants import bot_entrant
 from formula_tourney.sim import kernels as K
-from formula_tourney.sim import race_kernels as RK
 from formula_tourney.sim.catalog import load_track
 from formula_tourney.sim.config import EnvConfig, EnvSettings, ResetOptions
 from formula_tourney.sim.env import TERMINATIONS, InvalidActionError, _Batch
-from formula_tourney.sim.race_sim import ContactSettings, RaceSim
+from formula_tourney.sim.multicar import lockstep_kernels as RK
+from formula_tourney.sim.multicar.simulator import ContactSettings, RaceSim
 
 BOT_PATIENCE_S = 5.0
 

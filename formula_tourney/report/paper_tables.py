@@ -8,7 +8,7 @@ best zero-damage lap, DNF where no run produced one, and damage the cumulative t
 run (averaged over runs). Every lap-time table adds the baseline bots, the track's reference limit
 (quasi-steady-state lap on the minimum-curvature line) and the gap to it.
 
-Tables are built once as ``report.table_model.ReportTable`` and rendered by ``report.render`` and
+Tables are built once as ``report.table_model.ReportTable`` and rendered by ``report.renderers`` and
 ``report.html``.
 """
 

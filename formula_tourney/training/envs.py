@@ -14,7 +14,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from formula_tourney.bots.reference import reference_offsets
+from formula_tourney.bots.line_offsets import reference_offsets
 from formula_tourney.errors import UserInputError
 from formula_tourney.lines.limit import reference_limit_s
 from formula_tourney.sim.catalog import load_track

@@ -431,7 +431,7 @@ def step_race(state: np.ndarray, actions: np.ndarray, mode: np.ndarray, p: np.nd
 
 
 _CACHED = (resolve_pair, resolve_contacts, opponent_sensors, mark_near, step_race)
-_DIGEST_FILE = "race_kernels.kernels-sha1"
+_DIGEST_FILE = "lockstep_kernels.kernels-sha1"
 
 
 def _drop_stale_cache() -> None:
