@@ -6,7 +6,7 @@ import numpy as np
 from gymnasium.utils.env_checker import check_env
 from simtracks import stadium
 
-from formula_tourney.race.traffic_env import TrafficEnv
+from formula_tourney.bots.traffic_env import TrafficEnv
 from formula_tourney.sim import kernels as K
 from formula_tourney.sim.env import FormulaRacingEnv
 from formula_tourney.sim.multicar import lockstep_kernels as RK

@@ -118,7 +118,7 @@ class Schedule(_Frozen):
         ge=0,
         le=19,
         description="Traffic while training (beyond the paper): this many follower bots drive "
-        "around the learner in every training episode (race.traffic_env.TrafficEnv, "
+        "around the learner in every training episode (bots.traffic_env.TrafficEnv, "
         "alternately ahead and behind, 30-150 m apart) and the observation gets the 36 "
         "opponent sectors, so the model can learn to pass and defend; its tests drive alone "
         "with the same observation. 0: the paper's solo FormulaRacing-v0. Needs cars = 1.",
