@@ -320,13 +320,13 @@ def test_driven_lines_take_their_driver_as_an_argument(tmp_path, monkeypatch):
     assert len(calls) == 1
 
 
-def test_bots_reference_passes_the_follower(monkeypatch):
-    from formula_tourney.bots import follower, reference
+def test_bots_line_offsets_passes_the_follower(monkeypatch):
+    from formula_tourney.bots import follower, line_offsets
 
     seen = []
     monkeypatch.setattr(registry, "reference_offsets",
                         lambda track, kind, car=None, driver=None: seen.append(driver) or kind)
-    assert reference.reference_offsets(stadium(), "genetic") == "genetic"
+    assert line_offsets.reference_offsets(stadium(), "genetic") == "genetic"
     assert seen == [follower.drive]
 
 

@@ -13,6 +13,7 @@ import typer
 
 from formula_tourney.commands.output import emit, message
 from formula_tourney.errors import UserInputError
+from formula_tourney.lines.kinds import REFERENCE_KINDS
 from formula_tourney.training.presets import PRESETS
 
 RESULT_KEYS = (
@@ -69,7 +70,9 @@ def register(app: typer.Typer) -> None:
         track: list[str] = typer.Option(  # noqa: B006
             ["oval"], "--track", help="Training track; repeat to train on several."
         ),
-        reference: str = typer.Option("centre", help="Reference line: centre|recorded|mincurv."),
+        reference: str = typer.Option(
+            "centre", help=f"Reference line: {'|'.join(REFERENCE_KINDS)}."
+        ),
         lac: bool = typer.Option(False, "--lac", help="Add look-ahead curvature to observations."),
         episodes: int = typer.Option(100, help="Training episodes."),
         env_steps: int = typer.Option(
@@ -177,8 +180,9 @@ def register(app: typer.Typer) -> None:
         """Drive a checkpoint greedily (epsilon = 0) and report its laps."""
         if starts < 1 or max_steps < 1:
             raise UserInputError("--starts and --max-steps must be >= 1")
-        if reference is not None and reference not in ("centre", "recorded", "mincurv"):
-            raise UserInputError(f"--reference {reference!r}: use centre, recorded or mincurv")
+        if reference is not None and reference not in REFERENCE_KINDS:
+            raise UserInputError(f"--reference {reference!r}: use "
+                                 f"{', '.join(REFERENCE_KINDS[:-1])} or {REFERENCE_KINDS[-1]}")
         from formula_tourney.training.evaluate import evaluate_checkpoint
 
         result = evaluate_checkpoint(str(checkpoint), track, starts, max_steps, device, reference,

@@ -27,14 +27,12 @@ import numpy as np
 from formula_tourney.errors import UserInputError
 from formula_tourney.lines.centre import centre_offsets
 from formula_tourney.lines.genetic import genetic_line
+from formula_tourney.lines.kinds import LINE_KINDS
 from formula_tourney.lines.mincurv import mincurv_offsets
 from formula_tourney.lines.recorded import recorded_offsets
 from formula_tourney.safeio import atomic_write_bytes
 from formula_tourney.sim.car_params import CarParams
 from formula_tourney.sim.track import Track
-
-LINE_KINDS: tuple[str, ...] = ("centre", "mincurv", "recorded", "genetic")
-"""centre = the paper's MOT; recorded = the paper's RC (the line the Tita bot drove)."""
 
 ALGORITHM_VERSION = 2
 """Bump when a line's algorithm changes: old cache entries then stop matching."""

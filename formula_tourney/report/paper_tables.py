@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from formula_tourney.lines.kinds import line_label
 from formula_tourney.report import stats
 from formula_tourney.report.load import TournamentData
 from formula_tourney.report.table_model import (
@@ -33,26 +34,20 @@ from formula_tourney.report.table_model import (
 )
 from formula_tourney.results import metrics
 
-REFERENCE_LABELS = {"centre": "MOT", "recorded": "RC", "mincurv": "MinCurv", "genetic": "GenLine"}
-"""Paper names of reference lines: MOT = middle of track, RC = the racing line a bot drove."""
 BOT_LABELS = {"follower": "Follower (Tita)", "genetic": "Genetic"}
 LIMIT_LABEL = "Reference limit"
 NO_GENERAL = "none"
 """Table 3's General cell where no checkpoint of a configuration qualifies as a general model."""
 
 
-def reference_label(reference: str) -> str:
-    return REFERENCE_LABELS.get(str(reference), str(reference))
-
-
 def config_label(variant: str, reference: str, lac: bool) -> str:
     """``PER1M RC + LAC``: how the paper names an entrant configuration."""
-    return f"{variant} {reference_label(reference)}" + (" + LAC" if lac else "")
+    return f"{variant} {line_label(reference)}" + (" + LAC" if lac else "")
 
 
 def bot_label(bot: str, reference: str | None = None) -> str:
     base = BOT_LABELS.get(str(bot), str(bot))
-    return f"{base} {reference_label(reference)}" if reference else base
+    return f"{base} {line_label(reference)}" if reference else base
 
 
 # --------------------------------------------------------------------------------------------
@@ -276,7 +271,7 @@ TABLE1_METRICS = ["bLT", "aLT", "95% CI", "IQM", "gap", "runs", "dmg"]
 
 
 def _group_label(part: str, track: str, reference: str, lac: bool) -> str:
-    return f"{part}: {track} {reference_label(reference)}" + (" + LAC" if lac else "")
+    return f"{part}: {track} {line_label(reference)}" + (" + LAC" if lac else "")
 
 
 def table1(ctx: Context) -> ReportTable:
