@@ -2,7 +2,7 @@
 
 The observation depends on the reference line, LAC and the env settings a model was trained
 with, so an env built for a checkpoint must be built from the checkpoint's run spec exactly as
-training built it (issue 10: the replay used to drive another line than training had).
+training built it (a replay built otherwise once drove another line than training had).
 """
 
 from __future__ import annotations
