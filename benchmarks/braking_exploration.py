@@ -31,7 +31,7 @@ from formula_tourney.bots.follower import (
     _car_state,  # noqa: E402
     drive,  # noqa: E402
 )
-from formula_tourney.bots.reference import reference_offsets  # noqa: E402
+from formula_tourney.bots.line_offsets import reference_offsets  # noqa: E402
 from formula_tourney.sim.catalog import load_track  # noqa: E402
 from formula_tourney.training.demos import follower_for  # noqa: E402
 from formula_tourney.training.envs import RunEnvs  # noqa: E402

@@ -137,7 +137,7 @@ def time_race(track: Track | str, seconds: float, cars: int = RACE_CARS) -> tupl
     """(car-steps/s, share of car-steps in the contact lockstep) of ``cars`` cars racing in a
     pack: a staggered grid rolling at 20 m/s, near full throttle, regridded every 100 steps so
     they stay close (every car near another takes the lockstep path with contact tests)."""
-    from formula_tourney.sim.race_sim import RaceSim
+    from formula_tourney.sim.multicar.simulator import RaceSim
 
     sim = RaceSim([{"track": track, "lac": True}] * cars, opponents=True)
     length = sim.track.length_m

@@ -31,7 +31,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from formula_tourney.bots.baselines import bot_report  # noqa: E402
-from formula_tourney.bots.reference import reference_offsets  # noqa: E402
+from formula_tourney.bots.line_offsets import reference_offsets  # noqa: E402
 from formula_tourney.lines.lap_loss import LapLoss, lap_loss, track_sectors  # noqa: E402
 from formula_tourney.lines.registry import check_kind  # noqa: E402
 from formula_tourney.lines.speed_profile import speed_profile  # noqa: E402

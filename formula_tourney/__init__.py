@@ -19,12 +19,11 @@ except PackageNotFoundError:  # a source tree on sys.path without an install
 ENV_ID = "FormulaRacing-v0"
 
 TRAFFIC_ENV_ID = "FormulaRacingTraffic-v0"
-"""``race.traffic_env.TrafficEnv``: one learner among follower bots (``schedule.traffic_bots``).
-An id, not an import, so that ``training.envs`` builds it without importing ``race`` (which
-imports ``training``)."""
+"""``bots.traffic_env.TrafficEnv``: one learner among follower bots, for users who make envs by id
+(a run with ``schedule.traffic_bots`` is built by ``training.envs`` from the class itself)."""
 
 if TRAFFIC_ENV_ID not in gymnasium.registry:
-    gymnasium.register(id=TRAFFIC_ENV_ID, entry_point="formula_tourney.race.traffic_env:TrafficEnv")
+    gymnasium.register(id=TRAFFIC_ENV_ID, entry_point="formula_tourney.bots.traffic_env:TrafficEnv")
 
 if ENV_ID not in gymnasium.registry:
     gymnasium.register(

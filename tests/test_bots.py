@@ -97,7 +97,7 @@ def test_technical_track_clean_and_near_the_limit():
 
 
 def test_registry_recorded_and_genetic_lines_are_driven(tmp_path, monkeypatch):
-    from formula_tourney.bots.reference import reference_offsets
+    from formula_tourney.bots.line_offsets import reference_offsets
     from formula_tourney.lines import registry
 
     monkeypatch.setenv(registry.CACHE_ENV_VAR, str(tmp_path))

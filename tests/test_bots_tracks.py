@@ -12,7 +12,7 @@ import pytest
 from formula_tourney.bots.follower import drive
 from formula_tourney.lines.mincurv import mincurv
 from formula_tourney.lines.speed_profile import lap_time_s
-from formula_tourney.sim.reference import ReferenceLine
+from formula_tourney.sim.reference_line import ReferenceLine
 
 catalog = pytest.importorskip("formula_tourney.sim.catalog")
 

@@ -16,10 +16,10 @@ from report_fixtures import build_tournament
 from formula_tourney.claims.schema import Claim, shipped_set
 from formula_tourney.cli import main
 from formula_tourney.errors import UserInputError
-from formula_tourney.report import claims_profile
-from formula_tourney.report.claims import evaluate
-from formula_tourney.report.claims_load import load_claims_file, resolve_claims
-from formula_tourney.report.claims_stats import compare_scores, overall
+from formula_tourney.report.claims import profiles
+from formula_tourney.report.claims.evaluate import evaluate
+from formula_tourney.report.claims.evidence import compare_scores, overall
+from formula_tourney.report.claims.sources import load_claims_file, resolve_claims
 from formula_tourney.report.load import load_tournament
 from formula_tourney.report.paper_tables import Context
 from formula_tourney.results.folder import JobFolder
@@ -143,9 +143,9 @@ def test_reward_claim_split_and_missing_runs(ctx: Context) -> None:
 
 def test_performance_profile_by_hand() -> None:
     taus = np.array([1.0, 1.05, 1.1])
-    assert claims_profile.profile(np.array([1.0, 1.1, math.inf]), taus).tolist() == \
+    assert profiles.profile(np.array([1.0, 1.1, math.inf]), taus).tolist() == \
         pytest.approx([1 / 3, 1 / 3, 2 / 3])
-    mid, low, high = claims_profile.profile_band(np.array([1.0, 1.1, math.inf]), taus)
+    mid, low, high = profiles.profile_band(np.array([1.0, 1.1, math.inf]), taus)
     assert np.all(low <= mid) and np.all(mid <= high)
 
 
@@ -245,10 +245,10 @@ def test_a_run_repeated_in_another_part_counts_once(ctx: Context) -> None:
     assert comp.a_runs == ["part1/win1/seed-0", "part1/win1/seed-2"]
     assert "A: 1 run(s) repeating another run's training" in comp.note
     # the performance profile counts the repeated run once too
-    from_profile = claims_profile.run_ratios(dup_ctx)["job_id"].tolist()
+    from_profile = profiles.run_ratios(dup_ctx)["job_id"].tolist()
     assert "part1/win1/seed-1" not in from_profile and "part1/win1/seed-0" in from_profile
     # the fixture's ablation WIN1 repeats part1's WIN1 training seed for seed: counted once
-    plain = claims_profile.run_ratios(ctx)["job_id"].tolist()
+    plain = profiles.run_ratios(ctx)["job_id"].tolist()
     assert "part1/win1/seed-0" in plain and "ablation/win1/seed-0" not in plain
     # B drops a run that repeats one of A's
     data.configs["part1/win4/seed-2"] = same

@@ -13,7 +13,7 @@ from simtracks import stadium
 from training_fixtures import SMALL, ring_track
 
 from formula_tourney.bots.follower import drive
-from formula_tourney.bots.reference import reference_offsets
+from formula_tourney.bots.line_offsets import reference_offsets
 from formula_tourney.cli import main
 from formula_tourney.errors import UserInputError
 from formula_tourney.lines.limit import reference_limit_s

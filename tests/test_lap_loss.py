@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from formula_tourney.bots.follower import drive
-from formula_tourney.bots.reference import reference_offsets
+from formula_tourney.bots.line_offsets import reference_offsets
 from formula_tourney.errors import UserInputError
 from formula_tourney.lines.lap_loss import driven_time_at, lap_loss, track_sectors
 from formula_tourney.lines.speed_profile import speed_profile

@@ -22,7 +22,7 @@ from formula_tourney.lines.speed_profile import (
     top_speed_mps,
 )
 from formula_tourney.sim.car_params import GRAVITY_MPS2, CarParams
-from formula_tourney.sim.reference import ReferenceLine
+from formula_tourney.sim.reference_line import ReferenceLine
 
 G = GRAVITY_MPS2
 
@@ -305,7 +305,7 @@ def test_driven_lines_take_their_driver_as_an_argument(tmp_path, monkeypatch):
         x, y, _ = trk.pose_at(s % trk.length_m, lateral)
         return {"trace": {"lap": (s // trk.length_m).astype(int), "x_m": x, "y_m": y}}
 
-    with pytest.raises(TypeError, match="bots.reference.reference_offsets"):
+    with pytest.raises(TypeError, match="bots.line_offsets.reference_offsets"):
         registry.reference_offsets(track, "recorded")
     with pytest.raises(TypeError, match="driver"):
         registry.reference_offsets(track, "genetic", use_cache=False)
@@ -320,13 +320,13 @@ def test_driven_lines_take_their_driver_as_an_argument(tmp_path, monkeypatch):
     assert len(calls) == 1
 
 
-def test_bots_reference_passes_the_follower(monkeypatch):
-    from formula_tourney.bots import follower, reference
+def test_bots_line_offsets_passes_the_follower(monkeypatch):
+    from formula_tourney.bots import follower, line_offsets
 
     seen = []
     monkeypatch.setattr(registry, "reference_offsets",
                         lambda track, kind, car=None, driver=None: seen.append(driver) or kind)
-    assert reference.reference_offsets(stadium(), "genetic") == "genetic"
+    assert line_offsets.reference_offsets(stadium(), "genetic") == "genetic"
     assert seen == [follower.drive]
 
 

@@ -1,6 +1,6 @@
 """Imports go downward and stay visible: ``lines`` never imports ``bots``, and ``lines``, ``bots``
-and ``report`` import formula_tourney modules at the top of the file only
-(docs/ARCHITECTURE.md, "Layering")."""
+and ``report`` import formula_tourney modules at the top of the file only, in
+subpackages too (docs/ARCHITECTURE.md, "Layering")."""
 
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ def _imports(path: Path) -> list[tuple[str, bool]]:
 def test_lines_never_import_bots_and_imports_are_at_the_top():
     local, upward = [], []
     for area in ("lines", "bots", "report"):
-        for path in sorted((PACKAGE / area).glob("*.py")):
+        for path in sorted((PACKAGE / area).rglob("*.py")):
             for module, at_top in _imports(path):
                 if not at_top:
                     local.append(f"{path.name}: {module}")

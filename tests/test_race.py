@@ -19,8 +19,8 @@ from formula_tourney.race.run import run_race
 from formula_tourney.race.settings import RaceSettings
 from formula_tourney.race.timing import RUNNING
 from formula_tourney.sim import kernels as K
-from formula_tourney.sim import race_kernels as RK
 from formula_tourney.sim.catalog import load_track
+from formula_tourney.sim.multicar import lockstep_kernels as RK
 from formula_tourney.training.spec import build_run_spec
 
 TRACK = stadium()

@@ -10,10 +10,10 @@ from simtracks import stadium
 
 from formula_tourney.errors import UserInputError
 from formula_tourney.sim import kernels as K
-from formula_tourney.sim import race_kernels as RK
 from formula_tourney.sim.car_params import CarParams
 from formula_tourney.sim.env import FormulaRacingEnv, FormulaRacingVectorEnv
-from formula_tourney.sim.race_sim import OPPONENT_NAMES, ContactSettings, RaceSim
+from formula_tourney.sim.multicar import lockstep_kernels as RK
+from formula_tourney.sim.multicar.simulator import OPPONENT_NAMES, ContactSettings, RaceSim
 
 TRACK = stadium()
 FREE = {"track": TRACK, "random_start": True, "terminate_off_track": False,

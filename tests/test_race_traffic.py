@@ -6,10 +6,10 @@ import numpy as np
 from gymnasium.utils.env_checker import check_env
 from simtracks import stadium
 
-from formula_tourney.race.traffic_env import TrafficEnv
+from formula_tourney.bots.traffic_env import TrafficEnv
 from formula_tourney.sim import kernels as K
-from formula_tourney.sim import race_kernels as RK
 from formula_tourney.sim.env import FormulaRacingEnv
+from formula_tourney.sim.multicar import lockstep_kernels as RK
 
 TRACK = stadium()
 CFG = {"track": TRACK, "start_speed_mps": 15.0, "max_steps": 400}

@@ -15,7 +15,7 @@ from report_fixtures import (
 )
 
 from formula_tourney.errors import UserInputError
-from formula_tourney.report import paper_tables, render
+from formula_tourney.report import paper_tables, renderers
 from formula_tourney.report.competence_table import competence_table
 from formula_tourney.report.load import TournamentData, load_tournament, resolve_tournament
 from formula_tourney.report.paper_tables import LIMIT_LABEL, Context, build_tables
@@ -178,8 +178,8 @@ def test_empty_part_and_empty_tournament_render(results: Path) -> None:
         data = load_tournament(root, part=part)
         built = build_tables(Context.build(data))
         assert all(t.empty for t in built)
-        assert "no jobs" in render.render_markdown(built[0])
-        doc = render.latex_document(built, "x", data.problems)
+        assert "no jobs" in renderers.render_markdown(built[0])
+        doc = renderers.latex_document(built, "x", data.problems)
         assert doc.rstrip().endswith("\\end{document}")
 
 
@@ -208,10 +208,10 @@ def test_unreadable_files_become_problems(tmp_path: Path) -> None:
 
 
 def test_markdown_and_latex_render(built: dict[str, ReportTable]) -> None:
-    md = render.render_markdown(built["table1"])
+    md = renderers.render_markdown(built["table1"])
     assert "| win4 | **27.07** | **27.17** | [27.07, 27.27] |" in md
     assert "| ms3 | DNF | DNF |" in md
-    tex = render.render_latex_tabular(built["table1"].subset(["part1: oval MOT"]))
+    tex = renderers.render_latex_tabular(built["table1"].subset(["part1: oval MOT"]))
     assert "\\toprule" in tex and "\\bottomrule" in tex and "\\cmidrule(lr){2-8}" in tex
     assert "win4 & \\textbf{27.07} & \\textbf{27.17} & [27.07, 27.27]" in tex
     assert "27.10 & 27.23" in tex and "+5.0\\%" in tex
@@ -227,7 +227,7 @@ def test_terminal_table_never_cuts_numbers_on_a_narrow_console(
     from rich.console import Console
 
     console = Console(width=40, record=True, color_system=None)
-    render.render_rich(built["table1"], console)
+    renderers.render_rich(built["table1"], console)
     text = console.export_text()
     assert "…" not in text
     assert "27.10" in text  # win1's bLT on the oval, computed by hand above
@@ -247,7 +247,7 @@ def test_terminal_table_keeps_every_column_beside_a_long_label(
         if row["label"] == "win4":
             row["label"] = "WIN4 (beyond paper: preset tuned-bc, demos (follower on mincurv))"
     console = Console(width=80, record=True, color_system=None)
-    render.render_rich(table, console)
+    renderers.render_rich(table, console)
     lines = console.export_text().splitlines()
     rows = [line for line in lines if "WIN4 (beyond paper" in line]
     assert any("27.07" in r and "27.17" in r and "[27.07, 27.27]" in r for r in rows)  # oval

@@ -10,7 +10,7 @@ from simtracks import stadium
 
 from formula_tourney.sim import kernels as K
 from formula_tourney.sim.env import FormulaRacingEnv
-from formula_tourney.sim.reference import ReferenceLine
+from formula_tourney.sim.reference_line import ReferenceLine
 from formula_tourney.sim.sensors import (
     denormalise,
     observation_bounds,

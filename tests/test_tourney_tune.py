@@ -284,7 +284,7 @@ def _with_objective(block: str, tune: str = TUNE) -> str:
 
 def test_follower_lap_to_beat_is_driven_in_the_parent(tmp_path: Path) -> None:
     from formula_tourney.bots.follower import drive
-    from formula_tourney.bots.reference import reference_offsets
+    from formula_tourney.bots.line_offsets import reference_offsets
     from formula_tourney.sim.catalog import load_track
 
     path = tmp_path / "t.toml"

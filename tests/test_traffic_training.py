@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from tourney_fixtures import TINY
 
+from formula_tourney.bots.traffic_env import TrafficEnv
 from formula_tourney.errors import UserInputError
 from formula_tourney.race.entrants import model_entrant
-from formula_tourney.race.traffic_env import TrafficEnv
-from formula_tourney.sim import race_kernels as RK
 from formula_tourney.sim.env import FormulaRacingEnv
+from formula_tourney.sim.multicar import lockstep_kernels as RK
 from formula_tourney.tourney.api import plan_tournament
 from formula_tourney.training.envs import RunEnvs
 from formula_tourney.training.loop import train

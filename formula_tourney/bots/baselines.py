@@ -13,13 +13,13 @@ import math
 import numpy as np
 
 from formula_tourney.bots.follower import FollowerConfig, drive
-from formula_tourney.bots.reference import reference_offsets
+from formula_tourney.bots.line_offsets import reference_offsets
 from formula_tourney.lines.limit import reference_limit_s
 from formula_tourney.lines.registry import check_kind
 from formula_tourney.lines.speed_profile import speed_profile
 from formula_tourney.results.metrics import gap_pct
 from formula_tourney.sim.car_params import CarParams
-from formula_tourney.sim.reference import ReferenceLine
+from formula_tourney.sim.reference_line import ReferenceLine
 from formula_tourney.sim.track import Track
 
 BUILT_IN_TRACKS: tuple[str, ...] = ("oval", "technical", "flowing")

@@ -45,7 +45,7 @@ from formula_tourney.lines.surface import S_GRIP, S_ROLLING, PathSurface, surfac
 from formula_tourney.sim import kernels as K
 from formula_tourney.sim.car_params import GRAVITY_MPS2, CarParams
 from formula_tourney.sim.env import FormulaRacingEnv
-from formula_tourney.sim.reference import ReferenceLine
+from formula_tourney.sim.reference_line import ReferenceLine
 from formula_tourney.sim.track import Track
 
 

@@ -2,5 +2,5 @@
 
 ``claims.schema`` is the one model of a claim (what ``[claims]`` in a tournament file and a claims
 file hold); the shipped sets (``paper.toml``: the paper's six findings) live next to it. The
-report (``report.claims``) evaluates them on a tournament's results.
+report (``report.claims.evaluate``) evaluates them on a tournament's results.
 """

@@ -21,6 +21,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from formula_tourney.errors import UserInputError
+from formula_tourney.lines.kinds import LineKind, ReferenceKind
 from formula_tourney.safeio import check_name
 
 SETS_DIR = Path(__file__).resolve().parent
@@ -56,7 +57,7 @@ class Group(_Strict):
                                       "shell patterns allowed.")
     family: list[str] | None = Field(None, description="Families (DDPG, LSTM, MS, PER, TD3, "
                                      "SAC; or a tournament's own).")
-    reference: list[Literal["centre", "recorded", "mincurv"]] | None = Field(
+    reference: list[ReferenceKind] | None = Field(
         None, description="Reference lines of the runs: centre (MOT), recorded (RC), mincurv.")
     lac: bool | None = Field(None, description="Runs with (true) or without (false) look-ahead "
                              "curvature.")
@@ -68,7 +69,7 @@ class Group(_Strict):
     bot: Literal["follower", "genetic"] | None = Field(
         None, description="Instead of runs: a baseline bot's best clean lap (one value, no "
         "spread); only for kind = faster.")
-    bot_reference: Literal["centre", "recorded", "mincurv", "genetic"] | None = Field(
+    bot_reference: LineKind | None = Field(
         None, description="Line the bot drove (default: its best over the lines it drove).")
 
     _listify = field_validator("part", "entrant", "variant", "family", "reference",

@@ -18,6 +18,7 @@ from formula_tourney.commands.model_options import (
 )
 from formula_tourney.commands.output import emit, message
 from formula_tourney.errors import UserInputError
+from formula_tourney.lines.kinds import REFERENCE_KINDS
 from formula_tourney.training.presets import PRESETS
 from formula_tourney.training.spec import DemoSettings, RunSpec, Schedule, build_run_spec
 
@@ -146,8 +147,9 @@ def register(app: typer.Typer) -> None:
         """Drive a checkpoint greedily (epsilon = 0) and report its laps."""
         if starts < 1 or max_steps < 1:
             raise UserInputError("--starts and --max-steps must be >= 1")
-        if reference is not None and reference not in ("centre", "recorded", "mincurv"):
-            raise UserInputError(f"--reference {reference!r}: use centre, recorded or mincurv")
+        if reference is not None and reference not in REFERENCE_KINDS:
+            raise UserInputError(f"--reference {reference!r}: use "
+                                 f"{', '.join(REFERENCE_KINDS[:-1])} or {REFERENCE_KINDS[-1]}")
         from formula_tourney.training.evaluate import evaluate_checkpoint
 
         result = evaluate_checkpoint(str(checkpoint), track, starts, max_steps, device, reference,

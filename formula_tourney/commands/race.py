@@ -1,7 +1,7 @@
 """CLI: ``formula-tourney race MODEL... --bots follower --track T --laps L``: one race.
 
 Parses arguments, builds the entrants (``race.entrants``), runs the race (``race.run``), renders
-its table or prints one JSON document, and writes the optional GIF/MP4 (``sim.race_render``).
+its table or prints one JSON document, and writes the optional GIF/MP4 (``sim.multicar.frames``).
 Everything is checked before anything is written: a bad track, zero laps, a checkpoint whose
 actor does not fit its telemetry or an output path in a missing folder is one line, exit 2.
 """
@@ -142,8 +142,8 @@ def register(app: typer.Typer) -> None:
         from formula_tourney.report.race_standings import standings
         from formula_tourney.results.folder import RaceFolder
         from formula_tourney.sim.catalog import check_track_name, load_track
-        from formula_tourney.sim.race_render import RaceRenderer, ffmpeg_path, write_video
-        from formula_tourney.sim.race_sim import ContactSettings
+        from formula_tourney.sim.multicar.frames import RaceRenderer, ffmpeg_path, write_video
+        from formula_tourney.sim.multicar.simulator import ContactSettings
 
         if laps < 1:
             raise UserInputError(f"--laps: expected at least 1, got {laps}")

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from formula_tourney.errors import UserInputError
-from formula_tourney.sim.reference import ReferenceLine
+from formula_tourney.sim.reference_line import ReferenceLine
 from formula_tourney.sim.track import Track
 
 DEFAULT_LAC_DISTANCES_M: tuple[float, ...] = (20.0, 40.0, 60.0, 80.0)

@@ -9,7 +9,7 @@ algorithm version, so a changed track, car or algorithm never reads a stale line
 
 The recorded and genetic lines need a driver (the follower bot). ``lines`` sits below ``bots``
 (imports go downward), so the driver is an argument here, required for those two kinds;
-``bots.reference.reference_offsets(track, kind, car)`` is the same call with the follower passed
+``bots.line_offsets.reference_offsets(track, kind, car)`` is the same call with the follower passed
 in, and is what training, tournaments and the CLI use.
 """
 
@@ -27,14 +27,12 @@ import numpy as np
 from formula_tourney.errors import UserInputError
 from formula_tourney.lines.centre import centre_offsets
 from formula_tourney.lines.genetic import genetic_line
+from formula_tourney.lines.kinds import LINE_KINDS
 from formula_tourney.lines.mincurv import mincurv_offsets
 from formula_tourney.lines.recorded import recorded_offsets
 from formula_tourney.safeio import atomic_write_bytes
 from formula_tourney.sim.car_params import CarParams
 from formula_tourney.sim.track import Track
-
-LINE_KINDS: tuple[str, ...] = ("centre", "mincurv", "recorded", "genetic")
-"""centre = the paper's MOT; recorded = the paper's RC (the line the Tita bot drove)."""
 
 ALGORITHM_VERSION = 2
 """Bump when a line's algorithm changes: old cache entries then stop matching."""
@@ -100,7 +98,7 @@ def reference_offsets(
     """Lateral offsets (one per track sample) of the reference line ``kind`` on ``track``.
 
     ``driver`` drives the recorded and genetic lines (pass ``bots.follower.drive``, or call
-    ``bots.reference.reference_offsets``); a cached line is returned without driving.
+    ``bots.line_offsets.reference_offsets``); a cached line is returned without driving.
     """
     check_kind(kind)
     if kind == "centre":
@@ -108,7 +106,7 @@ def reference_offsets(
     if kind in DRIVEN_KINDS and driver is None:
         raise TypeError(
             f"the {kind} line is made by driving: pass driver= (bots.follower.drive), or call "
-            "formula_tourney.bots.reference.reference_offsets"
+            "formula_tourney.bots.line_offsets.reference_offsets"
         )
     car = car or CarParams()
     path = cache_path(track, kind, car)

@@ -42,7 +42,7 @@ from formula_tourney.lines.surface import (
     surface_forces,
 )
 from formula_tourney.sim.car_params import GRAVITY_MPS2, CarParams
-from formula_tourney.sim.reference import ReferenceLine
+from formula_tourney.sim.reference_line import ReferenceLine
 from formula_tourney.sim.track import Track
 
 SPEED_CAP_MPS = 150.0

@@ -1,8 +1,9 @@
-"""Who drives a race car: a trained model (from its telemetry) or a bot (from the true state).
+"""Who drives a race car: the driver protocol, and a trained model as a driver.
 
 A driver is anything with ``reset(obs, opp)`` and ``act(obs, opp, state_row) -> (3,)``: a model
 reads its own telemetry (plus the opponent block if it was trained with one; a model without it
-drives blind to the others), a bot reads the simulator's state as the follower always has.
+drives blind to the others), a bot (``bots.race_bot.BotDriver``) reads the simulator's state as
+the follower always has.
 """
 
 from __future__ import annotations
@@ -13,8 +14,6 @@ from typing import Any, Protocol
 import numpy as np
 
 from formula_tourney.agents.replay import ObservationWindow
-from formula_tourney.bots.follower import CarState, Follower
-from formula_tourney.sim import kernels as K
 
 
 class Driver(Protocol):
@@ -58,21 +57,3 @@ class ModelDriver:
         self._stack = None  # the next act pushes the observation that this action leads to
         return action
 
-
-@dataclass
-class BotDriver:
-    """The follower bot on its line (it reads the true state and does not see other cars)."""
-
-    name: str
-    follower: Follower
-    kind: str = "bot"
-    sees_opponents: bool = False
-
-    def reset(self, obs: np.ndarray, opp: np.ndarray) -> None:
-        self.follower.reset()
-
-    def act(self, obs: np.ndarray, opp: np.ndarray, state_row: np.ndarray) -> np.ndarray:
-        st = CarState(float(state_row[K.ST_X]), float(state_row[K.ST_Y]),
-                      float(state_row[K.ST_PSI]), float(state_row[K.ST_VX]),
-                      float(state_row[K.ST_VY]), float(state_row[K.ST_R]))
-        return np.asarray(self.follower.act(st), dtype=np.float64)

@@ -13,20 +13,15 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from formula_tourney.bots.follower import Follower
-from formula_tourney.bots.reference import reference_offsets
+from formula_tourney.bots.race_bot import race_bot
 from formula_tourney.errors import UserInputError
-from formula_tourney.race.drivers import BotDriver, Driver, ModelDriver
-from formula_tourney.sim import race_kernels as RK
+from formula_tourney.race.drivers import Driver, ModelDriver
 from formula_tourney.sim.config import EnvConfig, EnvSettings
+from formula_tourney.sim.multicar import lockstep_kernels as RK
 from formula_tourney.sim.sensors import observation_names
 from formula_tourney.sim.track import Track
 from formula_tourney.training.checkpoint import load_run_checkpoint
 from formula_tourney.training.envs import RunEnvs
-
-BOTS = ("follower",)
-"""Bots a race can field (``--bots``)."""
-BOT_LINE = "mincurv"
 
 
 @dataclass
@@ -73,20 +68,9 @@ def _default_name(path: Path, variant: str) -> str:
 
 def bot_entrant(kind: str, track: Track, settings: EnvSettings | None,
                 name: str | None = None) -> Entrant:
-    """A bot on ``track`` with the race's shared env settings."""
-    if kind not in BOTS:
-        raise UserInputError(f"unknown bot {kind!r}; known: {', '.join(BOTS)}")
-    env = settings or EnvSettings()
-    car = env.car_params()
-    offsets = reference_offsets(track, BOT_LINE, car)
-    fields = {k: getattr(env, k) for k in type(env).model_fields}
-    config = EnvConfig(**fields, track=track, reference_line="centre")
-    label = name or kind
-
-    def make() -> Driver:
-        return BotDriver(label, Follower(track=track, offsets_m=offsets, car=car,
-                                         grip_scale=env.grip_scale))
-    return Entrant(label, "bot", config, make, False, f"{kind} on the {BOT_LINE} line")
+    """A bot on ``track`` with the race's shared env settings (``bots.race_bot``)."""
+    bot = race_bot(kind, track, settings, name)
+    return Entrant(bot.name, "bot", bot.config, bot.make_driver, False, bot.source)
 
 
 def build_entrants(models: Sequence[str | Path], bots: Sequence[str], track: Track,

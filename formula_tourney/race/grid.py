@@ -17,8 +17,8 @@ import numpy as np
 from formula_tourney.race.entrants import Entrant
 from formula_tourney.race.settings import RaceSettings
 from formula_tourney.sim import kernels as K
-from formula_tourney.sim import race_kernels as RK
-from formula_tourney.sim.race_sim import RaceSim
+from formula_tourney.sim.multicar import lockstep_kernels as RK
+from formula_tourney.sim.multicar.simulator import RaceSim
 from formula_tourney.sim.track import Track
 
 QUALIFYING_START_BEFORE_LINE_M = 50.0

@@ -1,10 +1,11 @@
 """One race: grid, start, laps, retirements, contacts, and the classified result.
 
-The loop asks every driver for an action, advances the cars together (``sim.race_sim``), then
-reads what happened: line crossings (lap times, finishes), ends (retirements), car-car
-contacts (incidents and who caused them) and the race distances that order the field
-(``race.timing``). A car that finishes or retires leaves the track. The leader finishes after
-``laps`` laps; every other car finishes when it next crosses the line, a lapped car laps down.
+The loop asks every driver for an action, advances the cars together
+(``sim.multicar.simulator``), then reads what happened: line crossings (lap times, finishes),
+ends (retirements), car-car contacts (incidents and who caused them) and the race distances that
+order the field (``race.timing``). A car that finishes or retires leaves the track. The leader
+finishes after ``laps`` laps; every other car finishes when it next crosses the line, a lapped
+car laps down.
 """
 
 from __future__ import annotations
@@ -22,8 +23,8 @@ from formula_tourney.race.grid import grid_order, grid_slots, place_on_grid, qua
 from formula_tourney.race.settings import RaceSettings
 from formula_tourney.race.timing import FINISHED, RETIRED, RUNNING, RaceTiming
 from formula_tourney.sim import kernels as K
-from formula_tourney.sim import race_kernels as RK
-from formula_tourney.sim.race_sim import RaceSim
+from formula_tourney.sim.multicar import lockstep_kernels as RK
+from formula_tourney.sim.multicar.simulator import RaceSim
 
 TERM_REASONS = {K.TERM_OFF_TRACK: "off track", K.TERM_BACKWARDS: "spun",
                 K.TERM_SLOW: "stopped"}

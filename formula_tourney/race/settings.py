@@ -6,7 +6,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from formula_tourney.sim.race_sim import ContactSettings
+from formula_tourney.sim.multicar.simulator import ContactSettings
 
 
 class RaceSettings(BaseModel):

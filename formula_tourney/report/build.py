@@ -13,10 +13,10 @@ from pathlib import Path
 from typing import Any
 
 from formula_tourney.errors import UserInputError
-from formula_tourney.report.claims import evaluate_all
-from formula_tourney.report.claims_load import resolve_claims
-from formula_tourney.report.claims_plots import make_claim_figures
-from formula_tourney.report.claims_table import claims_table
+from formula_tourney.report.claims.evaluate import evaluate_all
+from formula_tourney.report.claims.figures import make_claim_figures
+from formula_tourney.report.claims.sources import resolve_claims
+from formula_tourney.report.claims.table import claims_table
 from formula_tourney.report.competence_table import competence_table
 from formula_tourney.report.cost import cost_table
 from formula_tourney.report.grip_table import grip_table
@@ -25,7 +25,7 @@ from formula_tourney.report.load import TournamentData, load_tournament, resolve
 from formula_tourney.report.paper_tables import Context, build_tables
 from formula_tourney.report.plots import make_figures
 from formula_tourney.report.race_table import load_race_parts, race_figures, race_table
-from formula_tourney.report.render import render_markdown, render_rich, write_latex
+from formula_tourney.report.renderers import render_markdown, render_rich, write_latex
 from formula_tourney.report.table_model import ReportTable
 from formula_tourney.results.index import read_meta
 from formula_tourney.safeio import atomic_write_text

@@ -17,7 +17,7 @@ from typing import Any
 
 import pandas as pd
 
-from formula_tourney.report.paper_tables import Context, ordered_rows, reference_label
+from formula_tourney.report.paper_tables import Context, group_label, ordered_rows
 from formula_tourney.report.table_model import DASH, ReportTable
 from formula_tourney.results import competence
 from formula_tourney.results.folder import CorruptResultError, JobFolder
@@ -71,8 +71,8 @@ def _budgeted_runs(ctx: Context) -> dict[str, dict[str, Any]]:
         except (CorruptResultError, KeyError) as err:
             data.problems.append(f"{job_id}: no time to competence: {err}")
             continue
-        label = (f"{job['part']}: {track} {reference_label(str(config.get('reference')))}"
-                 + (" + LAC" if config.get("lac") else ""))
+        label = group_label(str(job["part"]), track, str(config.get("reference")),
+                            bool(config.get("lac")))
         group = groups.setdefault(label, {"part": str(job["part"]), "track": track,
                                           "bots": bots, "budget_cpu_s": schedule["budget_cpu_s"],
                                           "stop_at": schedule.get("stop_at", "none"),

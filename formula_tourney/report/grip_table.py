@@ -16,13 +16,13 @@ from typing import Any
 
 import pandas as pd
 
+from formula_tourney.lines.kinds import line_label
 from formula_tourney.report.paper_tables import (
     LIMIT_LABEL,
     Context,
     entry_stats,
     fill_entry,
     ordered_rows,
-    reference_label,
 )
 from formula_tourney.report.table_model import DASH, ReportTable, fmt_lap
 from formula_tourney.results import metrics
@@ -32,7 +32,7 @@ GRIP_METRICS = ["bLT", "aLT", "lap/limit", "gap", "runs"]
 
 
 def grip_label(part: str, track: str, reference: str, lac: bool, grip: float) -> str:
-    return (f"{part}: {track} {reference_label(reference)}" + (" + LAC" if lac else "")
+    return (f"{part}: {track} {line_label(reference)}" + (" + LAC" if lac else "")
             + f" @ grip {grip:g}")
 
 

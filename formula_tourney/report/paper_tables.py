@@ -8,7 +8,7 @@ best zero-damage lap, DNF where no run produced one, and damage the cumulative t
 run (averaged over runs). Every lap-time table adds the baseline bots, the track's reference limit
 (quasi-steady-state lap on the minimum-curvature line) and the gap to it.
 
-Tables are built once as ``report.table_model.ReportTable`` and rendered by ``report.render`` and
+Tables are built once as ``report.table_model.ReportTable`` and rendered by ``report.renderers`` and
 ``report.html``.
 """
 
@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from formula_tourney.lines.kinds import line_label
 from formula_tourney.report import stats
 from formula_tourney.report.load import TournamentData
 from formula_tourney.report.table_model import (
@@ -33,26 +34,20 @@ from formula_tourney.report.table_model import (
 )
 from formula_tourney.results import metrics
 
-REFERENCE_LABELS = {"centre": "MOT", "recorded": "RC", "mincurv": "MinCurv", "genetic": "GenLine"}
-"""Paper names of reference lines: MOT = middle of track, RC = the racing line a bot drove."""
 BOT_LABELS = {"follower": "Follower (Tita)", "genetic": "Genetic"}
 LIMIT_LABEL = "Reference limit"
 NO_GENERAL = "none"
 """Table 3's General cell where no checkpoint of a configuration qualifies as a general model."""
 
 
-def reference_label(reference: str) -> str:
-    return REFERENCE_LABELS.get(str(reference), str(reference))
-
-
 def config_label(variant: str, reference: str, lac: bool) -> str:
     """``PER1M RC + LAC``: how the paper names an entrant configuration."""
-    return f"{variant} {reference_label(reference)}" + (" + LAC" if lac else "")
+    return f"{variant} {line_label(reference)}" + (" + LAC" if lac else "")
 
 
 def bot_label(bot: str, reference: str | None = None) -> str:
     base = BOT_LABELS.get(str(bot), str(bot))
-    return f"{base} {reference_label(reference)}" if reference else base
+    return f"{base} {line_label(reference)}" if reference else base
 
 
 # --------------------------------------------------------------------------------------------
@@ -275,8 +270,9 @@ class Context:
 TABLE1_METRICS = ["bLT", "aLT", "95% CI", "IQM", "gap", "runs", "dmg"]
 
 
-def _group_label(part: str, track: str, reference: str, lac: bool) -> str:
-    return f"{part}: {track} {reference_label(reference)}" + (" + LAC" if lac else "")
+def group_label(part: str, track: str, reference: str, lac: bool) -> str:
+    """``p1-oval: oval MOT + LAC``: the heading of one part x track x line group of runs."""
+    return f"{part}: {track} {line_label(reference)}" + (" + LAC" if lac else "")
 
 
 def table1(ctx: Context) -> ReportTable:
@@ -303,7 +299,7 @@ def table1(ctx: Context) -> ReportTable:
         part_jobs = ctx.jobs.loc[ctx.jobs["part"] == part]
         for _, job in part_jobs.iterrows():
             for track in job["train_tracks"]:
-                label = _group_label(part, track, job["reference"], bool(job["lac"]))
+                label = group_label(part, track, job["reference"], bool(job["lac"]))
                 grp = groups.setdefault(label, {"part": part, "track": track,
                                                 "reference": job["reference"],
                                                 "lac": bool(job["lac"]), "jobs": []})

@@ -1,6 +1,6 @@
 """The report's table model: a table as numbers (for bold and JSON) and display text.
 
-Paper tables (``report.paper_tables``) fill ``ReportTable`` rows; renderers (``report.render``,
+Paper tables (``report.paper_tables``) fill ``ReportTable`` rows; renderers (``report.renderers``,
 ``report.html``) only read them, so every format shows the same text for the same cell.
 """
 

@@ -224,7 +224,7 @@ class EnvConfig(EnvSettings):
     reference_line: Any = Field(
         "centre",
         description="'centre' or one lateral offset (m, left > 0) per track sample "
-        "(bots.reference.reference_offsets gives the other lines).",
+        "(bots.line_offsets.reference_offsets gives the other lines).",
     )
     lac: Boolean = Field(False, description="Add the look-ahead curvature to the observation.")
     max_steps: Integer = Field(
@@ -250,7 +250,7 @@ class EnvConfig(EnvSettings):
             if value != "centre":
                 raise ValueError(
                     f"{value!r} is not 'centre'; pass an array of offsets "
-                    "(bots.reference.reference_offsets) for other lines"
+                    "(bots.line_offsets.reference_offsets) for other lines"
                 )
             return value
         try:

@@ -24,8 +24,8 @@ from formula_tourney.sim import kernels as K
 from formula_tourney.sim.car import pack_params, set_start
 from formula_tourney.sim.catalog import load_track
 from formula_tourney.sim.config import EnvConfig, ResetOptions, default_config
-from formula_tourney.sim.reference import ReferenceLine
-from formula_tourney.sim.render import TrackRenderer
+from formula_tourney.sim.draw import TrackRenderer
+from formula_tourney.sim.reference_line import ReferenceLine
 from formula_tourney.sim.sensors import (
     observation_bounds,
     observation_names,
@@ -153,7 +153,7 @@ class _Batch:
             if spec != "centre":
                 raise UserInputError(
                     f"config key 'reference_line': {spec!r} is not 'centre'; pass an array of "
-                    "offsets (bots.reference.reference_offsets) for other lines")
+                    "offsets (bots.line_offsets.reference_offsets) for other lines")
             return ReferenceLine.centre(self.track)
         off = np.asarray(spec, dtype=float)
         tr = self.track

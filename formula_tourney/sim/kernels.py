@@ -947,9 +947,9 @@ def track_substep(st: np.ndarray, steer: float, cd: float, sd: float, throttle: 
                   length: float, dt: float, cp: float, sp: float, surface: bool):
     """One physics substep of one car on the track: dynamics, projection, walls, lap timing.
 
-    Its own function so that the race kernel (``sim/race_kernels.py``) can advance N cars in
-    lockstep, substep by substep, with car-car contact in between, through the same per-car
-    arithmetic as :func:`control_step` (inlined: the single-car path compiles as before).
+    Its own function so that the race kernel (``sim/multicar/lockstep_kernels.py``) can advance
+    N cars in lockstep, substep by substep, with car-car contact in between, through the same
+    per-car arithmetic as :func:`control_step` (inlined: the single-car path compiles as before).
     Returns the carried cos/sin of the yaw.
     """
     s_old = st[ST_S]

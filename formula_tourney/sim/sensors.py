@@ -36,7 +36,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from formula_tourney.sim import kernels as K
-from formula_tourney.sim.reference import ReferenceLine
+from formula_tourney.sim.reference_line import ReferenceLine
 from formula_tourney.sim.track import Track
 
 RANGE_FINDER_ANGLES_DEG = tuple(range(-90, 91, 10))

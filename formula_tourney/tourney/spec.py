@@ -32,6 +32,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from formula_tourney.agents.variants import ALL_VARIANTS, BEYOND_PAPER_VARIANTS, VARIANTS
 from formula_tourney.claims.schema import ClaimSet
 from formula_tourney.errors import UserInputError
+from formula_tourney.lines.kinds import LINE_LABELS, ReferenceKind
 from formula_tourney.race.settings import RaceSettings
 from formula_tourney.safeio import check_name, read_user_text
 from formula_tourney.sim.config import RUN_OWNED_KEYS, EnvSettings
@@ -48,8 +49,6 @@ PAPER_VARIANTS: tuple[str, ...] = tuple(VARIANTS)
 BEYOND_PAPER: tuple[str, ...] = tuple(BEYOND_PAPER_VARIANTS)
 ALL_AND_BEYOND_ENTRANTS = "all+beyond"
 """``entrants`` value for "all" plus every registered variant beyond the paper."""
-REFERENCE_TAGS: dict[str, str] = {"centre": "MOT", "recorded": "RC", "mincurv": "MC"}
-"""Short tags used in entrant names: the paper's MOT (middle of track) and RC (racing line)."""
 
 
 def default_family(variant: str) -> str:
@@ -107,7 +106,7 @@ class VariantEntry(_Strict):
 class Setup(_Strict):
     """A reference line and whether the agent sees its look-ahead curvature (LAC)."""
 
-    reference: Literal["centre", "recorded", "mincurv"] = Field(
+    reference: ReferenceKind = Field(
         "centre",
         description="Reference line of reward and telemetry: centre (paper's MOT), recorded "
         "(the follower bot's driven line, paper's RC) or mincurv (minimum-curvature line).",
@@ -123,7 +122,7 @@ class Baseline(_Strict):
         description="follower: the handcrafted line follower (the paper's Tita); genetic: the "
         "follower on a line found by the genetic search (Cardamone et al. 2010)."
     )
-    reference: Literal["centre", "recorded", "mincurv"] = Field(
+    reference: ReferenceKind = Field(
         "mincurv",
         description="Line the follower bot drives (ignored for the genetic bot, which drives "
         "its own line).",
@@ -707,5 +706,5 @@ def check_competence(spec: Tournament, index: int, path: Path, text: str) -> Non
 
 def entrant_name(variant: str, setup: Setup) -> str:
     """<variant>-<MOT|RC|MC>[-LAC]: unique within a part, safe as a folder name."""
-    name = f"{variant}-{REFERENCE_TAGS[setup.reference]}" + ("-LAC" if setup.lac else "")
+    name = f"{variant}-{LINE_LABELS[setup.reference]}" + ("-LAC" if setup.lac else "")
     return check_name(name, "entrant name")

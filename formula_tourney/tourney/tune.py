@@ -134,7 +134,7 @@ def objective_threshold(spec: TuneSpec, run: RunSpec) -> float | None:
         return math.inf
     # the bots import numba kernels and the line solvers: only when this objective needs them
     from formula_tourney.bots.follower import drive
-    from formula_tourney.bots.reference import reference_offsets
+    from formula_tourney.bots.line_offsets import reference_offsets
     from formula_tourney.sim.catalog import load_track
 
     track = load_track(run.key_track)

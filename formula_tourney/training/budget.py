@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from formula_tourney.bots.follower import drive
-from formula_tourney.bots.reference import reference_offsets
+from formula_tourney.bots.line_offsets import reference_offsets
 from formula_tourney.sim.car_params import CarParams
 from formula_tourney.sim.catalog import load_track
 from formula_tourney.training.envs import RunEnvs

@@ -26,7 +26,7 @@ import torch
 
 from formula_tourney.agents.replay import ReplayBuffer
 from formula_tourney.bots.follower import Follower, FollowerConfig, _car_state
-from formula_tourney.bots.reference import reference_offsets
+from formula_tourney.bots.line_offsets import reference_offsets
 from formula_tourney.sim.env import DEFAULT_START_BEFORE_LINE_M
 from formula_tourney.training.collect import RewardRule
 from formula_tourney.training.envs import RunEnvs

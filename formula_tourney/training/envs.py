@@ -13,8 +13,10 @@ from typing import Any
 
 import gymnasium
 import numpy as np
+from gymnasium.wrappers import OrderEnforcing
 
-from formula_tourney.bots.reference import reference_offsets
+from formula_tourney.bots.line_offsets import reference_offsets
+from formula_tourney.bots.traffic_env import TrafficEnv
 from formula_tourney.errors import UserInputError
 from formula_tourney.lines.limit import reference_limit_s
 from formula_tourney.sim.catalog import load_track
@@ -23,9 +25,6 @@ from formula_tourney.sim.track import Track
 from formula_tourney.training.spec import RunSpec
 
 ENV_ID = "FormulaRacing-v0"
-TRAFFIC_ENV_ID = "FormulaRacingTraffic-v0"
-"""``race.traffic_env.TrafficEnv`` through Gymnasium's registry (``formula_tourney/__init__``):
-``race`` imports ``training``, so ``training`` names the env and does not import it."""
 
 
 def reference_line(track: Track, kind: str, spec: RunSpec) -> Any:
@@ -109,8 +108,8 @@ class RunEnvs:
             if render_mode is not None:
                 raise UserInputError(f"{track}: a run trained in traffic has no {render_mode!r} "
                                      "render mode; race it with `formula-tourney race --gif`")
-            return gymnasium.make(TRAFFIC_ENV_ID, config=config, bots=0 if test else bots,
-                                  disable_env_checker=True)
+            # the wrapper gymnasium.make puts around FormulaRacing-v0: one stack for every run
+            return OrderEnforcing(TrafficEnv(config, bots=0 if test else bots))
         return gymnasium.make(
             ENV_ID, config=config, render_mode=render_mode, disable_env_checker=True
         )

@@ -31,12 +31,12 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from formula_tourney.agents.variants import AgentConfig, get_variant, named_settings
 from formula_tourney.errors import UserInputError
+from formula_tourney.lines.kinds import ReferenceKind
 from formula_tourney.results.identity import training_digest
 from formula_tourney.sim.catalog import check_track_name
 from formula_tourney.sim.config import RUN_OWNED_KEYS, EnvSettings, GripScale
 from formula_tourney.training.presets import get_preset
 
-Reference = Literal["centre", "recorded", "mincurv"]
 Device = Literal["auto", "cpu", "cuda"]
 
 RUN_OWNED_HINTS: dict[str, str] = {
@@ -134,7 +134,7 @@ class Schedule(_Frozen):
         ge=0,
         le=19,
         description="Traffic while training (beyond the paper): this many follower bots drive "
-        "around the learner in every training episode (race.traffic_env.TrafficEnv, "
+        "around the learner in every training episode (bots.traffic_env.TrafficEnv, "
         "alternately ahead and behind, 30-150 m apart) and the observation gets the 36 "
         "opponent sectors, so the model can learn to pass and defend; its tests drive alone "
         "with the same observation. 0: the paper's solo FormulaRacing-v0. Needs cars = 1.",
@@ -154,7 +154,7 @@ class DemoSettings(_Frozen):
         3, ge=1, le=1000, description="Timed laps the follower drives on each train track, in "
         "the env the agent trains in (its random starts, max_steps, reward and observation).",
     )  # fmt: skip
-    line: Reference = Field(
+    line: ReferenceKind = Field(
         "mincurv", description="The line the follower drives: centre, mincurv or recorded "
         "(the run's own reference line stays the reward's and the observation's).",
     )  # fmt: skip
@@ -199,7 +199,7 @@ class RunSpec(_Frozen):
     test_tracks: tuple[str, ...] = Field(
         min_length=1, description="Tracks to test on (the first train track is the key track)."
     )
-    reference: Reference = Field(
+    reference: ReferenceKind = Field(
         "centre",
         description="Reference line of the reward and LAC: centre (MOT), recorded (the "
         "follower bot's driven line) or mincurv (minimum-curvature racing line).",

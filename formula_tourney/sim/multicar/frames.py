@@ -1,6 +1,6 @@
 """Race frames: every car on the track in its own colour, and a live standings column.
 
-The track comes from :class:`sim.render.TrackRenderer` (drawn once with Agg; cars stamped with
+The track comes from :class:`sim.draw.TrackRenderer` (drawn once with Agg; cars stamped with
 NumPy), the column is drawn with Pillow's default bitmap font, so rendering needs no display and
 no font files. Frames are kept every ``every`` steps (default 2: a 5-lap race on `flowing` is
 ~1,000 frames of ~0.5 MB otherwise).
@@ -20,8 +20,8 @@ from PIL import Image, ImageDraw, ImageFont
 from formula_tourney.errors import UserInputError
 from formula_tourney.safeio import atomic_write
 from formula_tourney.sim import kernels as K
-from formula_tourney.sim import race_kernels as RK
-from formula_tourney.sim.render import BACKGROUND_RGB, MIN_CAR_PX, TrackRenderer
+from formula_tourney.sim.draw import BACKGROUND_RGB, MIN_CAR_PX, TrackRenderer
+from formula_tourney.sim.multicar import lockstep_kernels as RK
 from formula_tourney.sim.track import Track
 
 PALETTE = ((220, 30, 30), (30, 90, 230), (240, 200, 20), (200, 40, 200), (20, 200, 200),

@@ -1,15 +1,15 @@
 """The claims section as a report table: one row per comparison, one note per claim.
 
 Built as a ``ReportTable`` so that the terminal, Markdown, LaTeX, HTML and ``--json`` renderers
-show it like every other table (``report.render``, ``report.html``); the numbers are the
-``ClaimResult``'s (``report.claims``), formatted here and never recomputed.
+show it like every other table (``report.renderers``, ``report.html``); the numbers are the
+``ClaimResult``'s (``report.claims.evaluate``), formatted here and never recomputed.
 """
 
 from __future__ import annotations
 
 import math
 
-from formula_tourney.report.claims import ClaimResult
+from formula_tourney.report.claims.evaluate import ClaimResult
 from formula_tourney.report.table_model import DASH, ReportTable
 
 GROUP = "claims"

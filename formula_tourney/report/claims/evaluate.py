@@ -5,7 +5,7 @@ report's :class:`~formula_tourney.report.paper_tables.Context` (the jobs of the 
 run specs), turns every run into one score with the report's own metrics (``results.metrics``
 through ``Context.runs``: a run's best clean lap on a track; the share of its unseen test tracks
 it lapped cleanly; the highest moving average of its training reward, smoothed like the
-figures), and hands the scores to ``report.claims_stats``. B never holds a run of A. A claim
+figures), and hands the scores to ``report.claims.evidence``. B never holds a run of A. A claim
 with ``split_b`` or ``per_track`` is several comparisons with one overall verdict.
 
 A run entered again in another part with the same seed and training settings (only its tests
@@ -27,8 +27,8 @@ import numpy as np
 import pandas as pd
 
 from formula_tourney.claims.schema import Claim, Group
-from formula_tourney.report import claims_stats
-from formula_tourney.report.claims_stats import ClaimStats
+from formula_tourney.report.claims import evidence
+from formula_tourney.report.claims.evidence import ClaimStats
 from formula_tourney.report.paper_tables import Context, bot_result
 from formula_tourney.report.plots import moving_average
 from formula_tourney.results.identity import training_digest
@@ -65,7 +65,7 @@ class ClaimResult:
 
     claim: Claim
     comparisons: list[Comparison] = field(default_factory=list)
-    verdict: str = claims_stats.NO_DATA
+    verdict: str = evidence.NO_DATA
     notes: list[str] = field(default_factory=list)
 
     @property
@@ -254,7 +254,7 @@ def _compare(ctx: Context, claim: Claim, label: str, a_jobs: pd.DataFrame | None
         b_ids, b_vals, dropped = distinct_runs(ctx, b_ids, b_vals, taken)
         if dropped:
             notes.append(f"B: {dropped} {REPEATED}")
-    st = claims_stats.compare_scores(a_vals, b_vals, a_fixed, b_fixed)
+    st = evidence.compare_scores(a_vals, b_vals, a_fixed, b_fixed)
     missing = [name for name, ids in (("A", a_ids), ("B", b_ids)) if not ids]
     if missing:
         where = f" on {track}" if track else ""
@@ -297,7 +297,7 @@ def evaluate(ctx: Context, claim: Claim) -> ClaimResult:
             and not claim.per_track:
         result.notes.append("a bot needs a track: set track or per_track")
     result.comparisons = comparisons
-    result.verdict = claims_stats.overall([c.stats.verdict for c in comparisons])
+    result.verdict = evidence.overall([c.stats.verdict for c in comparisons])
     return result
 
 

@@ -10,9 +10,11 @@ between the learner and the bots this step) and ``position`` (the learner's plac
 cars on the track by race distance, 1 = ahead of all).
 
 With ``bots = 0`` the learner drives exactly as in ``FormulaRacing-v0``
-(tests/test_race_traffic.py). A run with ``schedule.traffic_bots`` trains in it (Gymnasium id
-``FormulaRacingTraffic-v0``, built by ``training.envs.RunEnvs``) and is tested in it without
-bots; its actor takes the opponent block (telemetry + 36 values), which races recognise.
+(tests/test_race_traffic.py). A run with ``schedule.traffic_bots`` trains in it and is tested in
+it without bots (``training.envs.RunEnvs`` builds it; users can make it by its Gymnasium id
+``FormulaRacingTraffic-v0``); its actor takes the opponent block (telemetry + 36 values), which
+races recognise. It lives in ``bots``, with the bots it fields, so that ``training`` imports it
+downward.
 """
 
 from __future__ import annotations
@@ -24,14 +26,14 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
+from formula_tourney.bots.race_bot import race_bot
 from formula_tourney.errors import UserInputError
-from formula_tourney.race.entrants import bot_entrant
 from formula_tourney.sim import kernels as K
-from formula_tourney.sim import race_kernels as RK
 from formula_tourney.sim.catalog import load_track
 from formula_tourney.sim.config import EnvConfig, EnvSettings, ResetOptions
 from formula_tourney.sim.env import TERMINATIONS, InvalidActionError, _Batch
-from formula_tourney.sim.race_sim import ContactSettings, RaceSim
+from formula_tourney.sim.multicar import lockstep_kernels as RK
+from formula_tourney.sim.multicar.simulator import ContactSettings, RaceSim
 
 BOT_PATIENCE_S = 5.0
 
@@ -59,7 +61,7 @@ class TrafficEnv(gymnasium.Env):
         self.gap_m = (float(gap_m[0]), float(gap_m[1]))
         self.opponents = bool(opponents)
         shared = EnvSettings(**{k: getattr(cfg, k) for k in EnvSettings.model_fields})
-        self._bots = [bot_entrant("follower", track, shared, f"bot{k + 1}") for k in range(bots)]
+        self._bots = [race_bot("follower", track, shared, f"bot{k + 1}") for k in range(bots)]
         patience = max(int(round(BOT_PATIENCE_S / cfg.control_period_s)), 1)
         bot_cfgs = [e.config.model_copy(update={
             "terminate_off_track": False, "terminate_backwards": True, "terminate_slow": True,

@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from formula_tourney.report import stats
-from formula_tourney.report.claims import training_key
+from formula_tourney.report.claims.evaluate import training_key
 from formula_tourney.report.paper_tables import Context
 
 

@@ -6,7 +6,7 @@
   episode for each configuration of that side, its general model marked in red
   (``plots.plot_generalisation`` with ``paper_tables.general_model_of``: the tables' choice).
 - ``profile``: the performance profile of every run of the tournament (lap / reference limit,
-  ``report.claims_profile``), one curve with its band per variant.
+  ``report.claims.profiles``), one curve with its band per variant.
 
 A claim without runs draws nothing (its verdict already says "no data").
 """
@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from formula_tourney.report import claims_profile
-from formula_tourney.report.claims import ClaimResult
+from formula_tourney.report.claims import profiles
+from formula_tourney.report.claims.evaluate import ClaimResult
 from formula_tourney.report.paper_tables import Context, config_label, general_model_of
 from formula_tourney.report.plots import _pyplot, plot_ablation, plot_generalisation, save_figure
 from formula_tourney.report.plots import slug as _slug
@@ -31,13 +31,13 @@ def plot_performance_profile(ratios: pd.DataFrame, title: str, out_base: Path) -
     95 % bootstrap bands (rliable's performance profile)."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.5))
-    taus = claims_profile.tau_grid(ratios["ratio"].to_numpy(dtype=float))
+    taus = profiles.tau_grid(ratios["ratio"].to_numpy(dtype=float))
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     groups = [(g, grp["ratio"].to_numpy(dtype=float)) for g, grp in
               ratios.groupby("group", sort=False)]
     groups.append(("all runs", ratios["ratio"].to_numpy(dtype=float)))
     for k, (name, values) in enumerate(groups):
-        mid, low, high = claims_profile.profile_band(values, taus)
+        mid, low, high = profiles.profile_band(values, taus)
         colour = "black" if name == "all runs" else colours[k % len(colours)]
         ax.step(taus, mid, where="post", color=colour, lw=2.0 if name == "all runs" else 1.2,
                 label=f"{name} (n={values.size})")
@@ -107,7 +107,7 @@ def make_claim_figures(ctx: Context, results: list[ClaimResult],
             figures.update(_reward_figure(ctx, res, out_dir))
         elif res.claim.kind == "finishes_more":
             figures.update(_generalisation_figures(ctx, res, out_dir))
-    ratios = claims_profile.run_ratios(ctx)
+    ratios = profiles.run_ratios(ctx)
     if not ratios.empty and np.isfinite(ratios["ratio"]).any():
         figures["profile"] = plot_performance_profile(
             ratios, f"Performance profile, {ctx.data.name}: all runs", out_dir / "profile")

@@ -1,6 +1,6 @@
 """N cars on one track that can touch and see each other: the simulator side of a race.
 
-:class:`RaceSim` holds the arrays of :func:`race_kernels.step_race` and nothing of a race's
+:class:`RaceSim` holds the arrays of :func:`lockstep_kernels.step_race` and nothing of a race's
 rules (grid, laps to go, classification: ``formula_tourney.race``). Each car brings its own env
 configuration, because entrants were trained against different reference lines, with or
 without LAC: every car gets the geometry block of its own line and its own config row, built by
@@ -19,11 +19,11 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from formula_tourney.errors import UserInputError
 from formula_tourney.sim import kernels as K
-from formula_tourney.sim import race_kernels as RK
 from formula_tourney.sim.car import set_start
 from formula_tourney.sim.catalog import load_track
 from formula_tourney.sim.config import EnvConfig
 from formula_tourney.sim.env import _Batch
+from formula_tourney.sim.multicar import lockstep_kernels as RK
 from formula_tourney.sim.track import Track
 
 OPPONENT_NAMES: tuple[str, ...] = tuple(f"opp_{-180 + 10 * k}" for k in range(RK.N_OPP))

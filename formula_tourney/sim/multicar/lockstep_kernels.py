@@ -431,17 +431,18 @@ def step_race(state: np.ndarray, actions: np.ndarray, mode: np.ndarray, p: np.nd
 
 
 _CACHED = (resolve_pair, resolve_contacts, opponent_sensors, mark_near, step_race)
-_DIGEST_FILE = "race_kernels.kernels-sha1"
+_DIGEST_FILE = "lockstep_kernels.kernels-sha1"
 
 
 def _drop_stale_cache() -> None:
-    """Forget this module's compiled kernels when ``kernels.py`` changed since they were cached.
+    """Forget this module's compiled kernels when ``sim/kernels.py`` changed since they were
+    cached (the digest of that file is kept next to numba's cache of this module).
 
     numba keys a function's cache on its *own* file's timestamp, but these kernels compile the
-    functions of ``kernels.py`` into themselves: after an edit there (a new state column, new
+    functions of ``sim/kernels.py`` into themselves: after an edit there (a new state column, new
     physics) the cached race step would run the old arithmetic. Measured once, before this
-    check: a changed ``kernels.py`` left the race step 1 ulp off the vector env, and a changed
-    ``N_STATE`` would have been worse.
+    check: a changed ``sim/kernels.py`` left the race step 1 ulp off the vector env, and a
+    changed ``N_STATE`` would have been worse.
     """
     digest = hashlib.sha1(Path(K.__file__).read_bytes()).hexdigest()
     try:
