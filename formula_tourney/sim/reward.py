@@ -177,9 +177,10 @@ def parts(weights: np.ndarray, inputs: np.ndarray) -> dict[str, Any]:
         "damage": np.where(ended, 0.0, -w["damage_weight"] * x["damage"]),
         "end": np.where(ended, x["reward"], 0.0),
     }
+    # (+ 0.0 turns the -0.0 of a part that pays nothing into 0.0)
     if inputs.ndim == 1:
-        return {k: float(v) for k, v in out.items()}
-    return out
+        return {k: float(v) + 0.0 for k, v in out.items()}
+    return {k: v + 0.0 for k, v in out.items()}
 
 
 class RewardParts(Mapping[str, Any]):
