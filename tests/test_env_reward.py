@@ -108,8 +108,8 @@ def test_vector_parts_are_arrays_over_cars_and_sum_to_the_rewards() -> None:
 def test_the_kernel_packing_comes_from_the_models_table() -> None:
     """Every weight the kernel reads sits at C_REWARD + its place in the table, every input at
     O_REWARD_IN + its place: a new setting or input takes the next slot, no index to write."""
-    assert K.N_CFG == K.C_REWARD + len(R.KERNEL_NAMES)
-    assert K.N_OUT == K.O_REWARD_IN + len(R.INPUT_NAMES)
+    assert K.C_REWARD + len(R.KERNEL_NAMES) == K.N_CFG
+    assert K.O_REWARD_IN + len(R.INPUT_NAMES) == K.N_OUT
     slots = {"track_pos_weight": K.C_TRACKPOS_W, "progress_reward": K.C_PROGRESS,
              "damage_weight": K.C_DMG_W, "slow_penalty": K.C_SLOW_PEN,
              "early_end_reward": K.C_END_REWARD}

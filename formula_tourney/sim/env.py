@@ -129,6 +129,7 @@ class _Batch:
         self.integrate = np.zeros(n, dtype=np.uint8)
         self.obs = np.zeros((n, n_obs), dtype=np.float32)
         self.out = np.zeros((n, K.N_OUT))
+        self.reward_in = self.out[:, K.O_REWARD_IN:]  # what each car's reward is made of
         # Per-car bookkeeping as object/float arrays: the vector env's info copies them whole.
         self.lap_times = np.empty(n, dtype=object)
         self.lap_damage = np.empty(n, dtype=object)
@@ -281,7 +282,7 @@ class _Batch:
             "off_track": st[K.ST_OFF] > 0.5,
             "termination": self.termination[c],
             "grip_scale": self.base_grip * (1.0 + st[K.ST_GRIP_DELTA]),
-            "rewards": R.RewardParts(self.reward_weights, self.out[c, K.O_REWARD_IN:].copy()),
+            "rewards": R.RewardParts(self.reward_weights, self.reward_in[c].copy()),
         }
 
 
@@ -582,7 +583,7 @@ class FormulaRacingVectorEnv(VectorEnv):
             "off_track": off > 0.5,
             "termination": b.termination.copy(),
             "grip_scale": b.base_grip * (1.0 + d_grip),
-            "rewards": R.RewardParts(b.reward_weights, b.out[:, K.O_REWARD_IN:].copy()),
+            "rewards": R.RewardParts(b.reward_weights, b.reward_in.copy()),
         }
         mask = self._mask
         for key in _INFO_KEYS:
