@@ -160,3 +160,25 @@ def test_the_reward_settings_keep_the_config_hash_of_existing_runs() -> None:
     spec = build_run_spec(variant="WIN1", train_tracks=["oval"], preset="tuned-bc-ema")
     assert spec.agent.crash_penalty == 1000.0
     assert R.RewardRule.of(spec.agent) == R.RewardRule(scale=0.02, crash_penalty=1000.0)
+
+
+def test_cached_kernels_are_forgotten_when_the_tables_they_read_change(tmp_path) -> None:
+    """numba freezes the derived indices into its cache: a changed table layout flushes the
+    cached kernels once (and writes its digest), an unchanged one leaves them."""
+
+    class Cache:
+        cache_path = str(tmp_path)
+        flushes = 0
+
+        def flush(self) -> None:
+            Cache.flushes += 1
+
+    class Kernel:
+        _cache = Cache()
+
+    K.drop_stale_cache([Kernel, Kernel], b"layout 1", "marker")
+    assert Cache.flushes == 2 and (tmp_path / "marker").exists()
+    K.drop_stale_cache([Kernel, Kernel], b"layout 1", "marker")
+    assert Cache.flushes == 2
+    K.drop_stale_cache([Kernel, Kernel], b"layout 2", "marker")
+    assert Cache.flushes == 4
