@@ -1,4 +1,4 @@
-"""The Gymnasium env: API, config, reward, episode ends, laps, walls, rendering (issue 2, #5)."""
+"""The Gymnasium env: API, config, reward, episode ends, laps, walls, rendering."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from formula_tourney.sim.env import FormulaRacingEnv
 TRACK = stadium()  # 400 m straights, radius 80 m, 12 m wide; length ~1302.65 m
 INFO_KEYS = {"lap_times_s", "lap_damage", "last_lap_s", "best_lap_s", "laps", "damage",
              "distance_m", "s_m", "lateral_m", "speed_mps", "off_track", "termination",
-             "grip_scale"}
+             "grip_scale", "rewards"}
 
 
 def driver(obs: np.ndarray, target_mps: float = 24.0) -> np.ndarray:

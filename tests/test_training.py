@@ -57,9 +57,11 @@ def test_train_writes_the_job_folder_contract(tmp_path, ring_tracks) -> None:
     assert list(tests.columns) == [
         "episode", "env_steps", "track", "start_s_m", "finished", "best_lap_s", "laps", "damage",
         "reward", "steps", "termination", "checkpoint", "distance_m", "grip_scale",
-        "reference_limit_s",
+        "reference_limit_s", "cpu_s",
     ]  # fmt: skip
     assert list(tests.columns) == JOB_TABLES["tests"]
+    # the CPU-seconds at each test round: time to competence reads them
+    assert (tests.cpu_s > 0).all() and tests.cpu_s.is_monotonic_increasing
     # tested at the run's own grip only: no limit computed (the part's baselines carry it)
     assert (tests.grip_scale == 1.0).all() and tests.reference_limit_s.isna().all()
     assert (tests.distance_m > 0).all()

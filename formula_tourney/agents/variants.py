@@ -17,6 +17,8 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from formula_tourney.errors import UserInputError
+from formula_tourney.field_marks import marks
+from formula_tourney.sim.reward import BY_NAME as REWARD_SETTINGS
 
 Family = Literal["DDPG", "LSTM", "MS", "PER", "TD3", "SAC"]
 Algorithm = Literal["ddpg", "td3", "sac"]
@@ -107,28 +109,14 @@ class AgentConfig(BaseModel):
     )
     # --- DDPG ---------------------------------------------------------------------------------
     gamma: float = Field(0.99, gt=0.0, le=1.0, description="Discount factor gamma.")
-    reward_scale: float = Field(
-        0.02,
-        gt=0.0,
-        description="Rewards are multiplied by this before they enter the replay buffer. The "
-        "paper's reward is Vx in m/s per step (up to ~80), so Q reaches thousands; scaled, the "
-        "critic starts near its targets' size.",
-    )
+    reward_scale: float = REWARD_SETTINGS["reward_scale"].field()
     tau: float = Field(
         0.005,
         gt=0.0,
         le=1.0,
         description="Soft target update: theta' <- tau theta + (1-tau) theta'.",
     )
-    crash_penalty: float = Field(
-        0.0,
-        ge=0.0,
-        le=100_000.0,
-        description="Beyond the paper: subtracted from the reward (env units, before "
-        "reward_scale) of every transition that ends its episode early (off track, backwards, "
-        "slow), so the critic sees a crash as costlier than the paper's -1 plus the lost "
-        "future; 0: the paper's rewards, stored bit for bit as before.",
-    )
+    crash_penalty: float = REWARD_SETTINGS["crash_penalty"].field()
     actor_lr: float = Field(1e-4, gt=0.0, description="Adam learning rate of the actor.")
     critic_lr: float = Field(1e-3, gt=0.0, description="Adam learning rate of the critic.")
     batch_size: int = Field(256, ge=1, le=65536, description="Minibatch size N per update.")
@@ -197,6 +185,7 @@ class AgentConfig(BaseModel):
         description="Beyond the paper: epsilon never anneals below this, so OU and brake "
         "exploration go on for the whole run (as TD3's constant noise does) and the critic keeps "
         "seeing actions beside the actor's; 0: the paper's anneal to pure actor actions.",
+        json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
     )
     eval_ema_updates: int = Field(
         0,
@@ -206,6 +195,7 @@ class AgentConfig(BaseModel):
         "(decay 1 - 1/N), the online actor going on learning as before; 0: tests drive the "
         "online actor, as the paper does. Between two tests the online actor moves through "
         "thousands of updates and a snapshot lands wherever the last few put it.",
+        json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
     )
     noise_prob: float = Field(
         0.1,
@@ -239,6 +229,7 @@ class AgentConfig(BaseModel):
         description="Beyond the paper: a brake exploration, once fired, is held for a number of "
         "steps drawn from 1..this (1: the paper's single-step rule). A hairpin needs 8-13 steps "
         "of braking that single-step events never produce (benchmarks/braking_exploration.py).",
+        json_schema_extra=marks(beyond_paper=True),
     )
 
     @model_validator(mode="after")

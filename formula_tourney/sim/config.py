@@ -8,7 +8,9 @@ here, so a key's meaning, default and allowed range are written once. Two levels
   a user set are ``model_fields_set``.
 - :class:`EnvConfig` adds the keys a *run* owns (track, reference line, LAC, episode length,
   random starts): a run specification sets those from its own fields, so an override cannot
-  silently fight them (the bug behind issue 10's item 2).
+  silently fight them.
+
+The reward's keys are declared in ``sim.reward`` (the reward model) and only held here.
 
 Like highway-env, a user's dict is merged over the defaults; unlike it, unknown keys are an error.
 """
@@ -31,6 +33,8 @@ from pydantic import (
 )
 
 from formula_tourney.errors import UserInputError
+from formula_tourney.field_marks import marks
+from formula_tourney.sim import reward as R
 from formula_tourney.sim.car_params import CarParams
 from formula_tourney.sim.track import Track
 
@@ -115,31 +119,10 @@ class EnvSettings(BaseModel):
     slow_patience_steps: Integer = Field(
         25, ge=1, description="Consecutive slow steps that end the episode."
     )
-    slow_penalty: Real = Field(
-        100.0,
-        ge=0.0,
-        description="Reward on a slow end is -slow_penalty: a slow end without penalty taught "
-        "a run to stop on track (DESIGN.md).",
-    )
-    damage_weight: Real = Field(
-        0.01, ge=0.0, description="Reward term: minus this times the damage taken in the step."
-    )
-    track_pos_weight: Real = Field(
-        1.0,
-        ge=0.0,
-        le=10.0,
-        description="Weight w of the reward's -Vx w |trackPos| term. The paper's 1 pays a car "
-        "for staying on the reference line, which caps its lap at that line's limit; below 1 "
-        "(beyond the paper) the car may take its own line across the track.",
-    )
-    progress_reward: Boolean = Field(
-        False,
-        description="Beyond the paper: the reward's speed term is the car's progress along the "
-        "track (metres of centreline per second, what a lap time counts) instead of the paper's "
-        "Vx (cos(theta) - |sin(theta)|) along the reference line, which pays only for speed "
-        "along that line and so for a longer way round a corner as much as a shorter one. The "
-        "line term -Vx w |trackPos| and the damage term stay.",
-    )
+    slow_penalty: Real = R.BY_NAME["slow_penalty"].field()
+    damage_weight: Real = R.BY_NAME["damage_weight"].field()
+    track_pos_weight: Real = R.BY_NAME["track_pos_weight"].field()
+    progress_reward: Boolean = R.BY_NAME["progress_reward"].field()
     start_speed_mps: Real = Field(
         0.0, ge=0.0, le=100.0, description="Speed at reset along the reference line."
     )
@@ -156,11 +139,13 @@ class EnvSettings(BaseModel):
         description="[lo, hi]: each episode (each car's, in a vector env) draws its grip scale "
         "uniformly from this range with the env's seeded RNG, in place of grip_scale (leave "
         "grip_scale at 1). None: every episode at grip_scale.",
+        json_schema_extra=marks(added_in_layout=2),
     )
     grip_drying: GripDrying | None = Field(
         None,
         description="A drying track, {start, over_laps}: each episode's grip rises from start "
         "to grip_scale over that many laps driven. None: no drying.",
+        json_schema_extra=marks(added_in_layout=2),
     )
     car: dict[str, Any] = Field(
         default_factory=dict,

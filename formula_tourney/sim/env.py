@@ -21,6 +21,7 @@ from gymnasium.vector.utils import batch_space
 
 from formula_tourney.errors import UserInputError
 from formula_tourney.sim import kernels as K
+from formula_tourney.sim import reward as R
 from formula_tourney.sim.car import pack_params, set_start
 from formula_tourney.sim.catalog import load_track
 from formula_tourney.sim.config import EnvConfig, ResetOptions, default_config
@@ -101,10 +102,8 @@ class _Batch:
         c[K.C_TERM_SLOW] = cfg.terminate_slow
         c[K.C_SLOW_MPS] = cfg.slow_speed_kmh / 3.6
         c[K.C_SLOW_PATIENCE] = self.slow_patience
-        c[K.C_DMG_W] = cfg.damage_weight
-        c[K.C_SLOW_PEN] = cfg.slow_penalty
-        c[K.C_TRACKPOS_W] = cfg.track_pos_weight
-        c[K.C_PROGRESS] = 1.0 if cfg.progress_reward else 0.0
+        self.reward_weights = c[K.C_REWARD:]  # a view: the kernel and info["rewards"] read it
+        R.pack(cfg, self.reward_weights)
         c[K.C_LAC] = 1.0 if self.lac else 0.0
         c[K.C_LENGTH] = self.track.length_m
         self.geom = track_geometry(self.track, self.reference, cfg.grip_scale,
@@ -130,6 +129,7 @@ class _Batch:
         self.integrate = np.zeros(n, dtype=np.uint8)
         self.obs = np.zeros((n, n_obs), dtype=np.float32)
         self.out = np.zeros((n, K.N_OUT))
+        self.reward_in = self.out[:, K.O_REWARD_IN:]  # what each car's reward is made of
         # Per-car bookkeeping as object/float arrays: the vector env's info copies them whole.
         self.lap_times = np.empty(n, dtype=object)
         self.lap_damage = np.empty(n, dtype=object)
@@ -282,6 +282,7 @@ class _Batch:
             "off_track": st[K.ST_OFF] > 0.5,
             "termination": self.termination[c],
             "grip_scale": self.base_grip * (1.0 + st[K.ST_GRIP_DELTA]),
+            "rewards": R.RewardParts(self.reward_weights, self.reward_in[c].copy()),
         }
 
 
@@ -368,6 +369,9 @@ class FormulaRacingEnv(gymnasium.Env):
     paper) the speed term `Vx * (cos(theta) - |sin(theta)|)` is replaced by the step's progress
     along the track in m/s (what a lap time counts; the inside of a corner earns more).
     A step that ends the episode off track or backwards gives -1; a slow end `-slow_penalty`.
+    `info["rewards"]` splits the step's reward into its parts (`sim.reward.PARTS`: along,
+    sideways, progress, track_pos, damage, end), which sum to it; the reward model with every
+    setting is `sim.reward` (docs/sim.md, "Reward").
 
     ## Starting State
     On the reference line, `start_s_m` (default 50 m before the start line, or uniform with
@@ -388,8 +392,9 @@ class FormulaRacingEnv(gymnasium.Env):
     physics_hz (>= 100), max_steps, terminate_off_track, terminate_backwards, terminate_slow,
     slow_speed_kmh, slow_patience_steps, slow_penalty, damage_weight, random_start,
     start_speed_mps, grass_width_m, grip_scale, grip_scale_range (a grip drawn per episode),
-    grip_drying (a drying track), car (CarParams overrides). `info["grip_scale"]` is the
-    episode's grip now (every surface's friction multiplier).
+    grip_drying (a drying track), track_pos_weight, progress_reward, car (CarParams
+    overrides). `info["grip_scale"]` is the episode's grip now (every surface's friction
+    multiplier).
     `reset(seed=..., options={{"start_s_m": float, "start_speed_mps": float}})`.
 
     ## Version History
@@ -469,7 +474,7 @@ _INFO_COLS = [K.ST_DAMAGE, K.ST_DIST, K.ST_S, K.ST_LAT, K.ST_VX, K.ST_VY, K.ST_O
               K.ST_GRIP_DELTA]
 _INFO_KEYS = ("lap_times_s", "lap_damage", "last_lap_s", "best_lap_s", "laps", "damage",
               "distance_m", "s_m", "lateral_m", "speed_mps", "off_track", "termination",
-              "grip_scale")
+              "grip_scale", "rewards")
 
 
 class FormulaRacingVectorEnv(VectorEnv):
@@ -578,6 +583,7 @@ class FormulaRacingVectorEnv(VectorEnv):
             "off_track": off > 0.5,
             "termination": b.termination.copy(),
             "grip_scale": b.base_grip * (1.0 + d_grip),
+            "rewards": R.RewardParts(b.reward_weights, b.reward_in.copy()),
         }
         mask = self._mask
         for key in _INFO_KEYS:

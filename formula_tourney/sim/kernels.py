@@ -4,7 +4,7 @@ One call of :func:`step_cars` advances every car of a batch by one control perio
 observation, reward and end flags into preallocated arrays. Everything a step needs lives here so
 that the Python side of ``env.step`` is one numba call plus a few array reads.
 
-Why numba and this shape (DESIGN.md, "Measured on this kind of machine"): NumPy batched over 64
+Why numba and this shape (docs/sim.md, "Speed"): NumPy batched over 64
 cars managed only ~6-9k car-steps/s because each of the ~100 small array operations per substep
 costs microseconds of call overhead; the same step compiled with numba ran 80-140k steps/s for one
 car and ~250k car-steps/s for 64 cars on one thread. Range finders dominate the kernel, so each
@@ -26,16 +26,30 @@ Data layout (all float64, row per car):
 - ``geom[i, G_*]``: per track sample: centreline, widths, edges, reference line.
 - ``elev[i, E_*]``: per track sample: height, gravity on the sloped and banked surface, vertical
   curvature (read only when ``cfg[C_ELEV]`` is set).
-- ``cfg[C_*]``: control period, substeps, grass width, termination switches, reward weights.
-- ``out[c, O_*]``: reward, termination code, truncation, lap time of a lap completed this step.
+- ``cfg[C_*]``: control period, substeps, grass width, termination switches, then the reward
+  model's weights from ``C_REWARD`` on, in the order of ``reward.KERNEL_NAMES``.
+- ``out[c, O_*]``: truncation, lap time of a lap completed this step, then from ``O_REWARD_IN``
+  on what the reward is made of (``reward.INPUT_NAMES``: the reward, the end code, the damage of
+  the step, Vx, theta, trackPos, progress), which ``info["rewards"]`` splits into parts.
+
+The reward blocks' indices are derived from ``sim.reward``'s tables, never written by hand: a new
+weight or input goes into its table and takes the next slot. numba freezes these indices into the
+cached kernels, so :func:`drop_stale_cache` forgets them when those tables change.
 """
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import math
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numba import njit, prange
+
+from formula_tourney.sim import reward as R
 
 # --- state columns -----------------------------------------------------------------------------
 ST_X = 0  # world x of the centre of gravity, m
@@ -178,24 +192,31 @@ C_TERM_BACK = 5
 C_TERM_SLOW = 6
 C_SLOW_MPS = 7
 C_SLOW_PATIENCE = 8
-C_DMG_W = 9
-C_SLOW_PEN = 10
-C_LAC = 11
-C_LENGTH = 12  # track length, m
-C_ELEV = 13  # 1 when the track has heights or banking (the ``elev`` block is read)
-C_DRY_M = 14  # drying track: distance (m) over which the grip dries; 0 = no drying
-C_DRY_DELTA0 = 15  # drying track: ``ST_GRIP_DELTA`` at distance 0 (rises linearly to 0)
-C_TRACKPOS_W = 16  # weight of the reward's ``-Vx |trackPos|`` term (the paper: 1)
-C_PROGRESS = 17  # 1: the reward's speed term is the progress along the track (beyond the paper)
-N_CFG = 18
+C_LAC = 9
+C_LENGTH = 10  # track length, m
+C_ELEV = 11  # 1 when the track has heights or banking (the ``elev`` block is read)
+C_DRY_M = 12  # drying track: distance (m) over which the grip dries; 0 = no drying
+C_DRY_DELTA0 = 13  # drying track: ``ST_GRIP_DELTA`` at distance 0 (rises linearly to 0)
+C_REWARD = 14  # the reward model's weights (``reward.pack``), in ``reward.KERNEL_NAMES`` order:
+C_TRACKPOS_W = C_REWARD + R.kernel_slot("track_pos_weight")  # of ``-Vx w |trackPos|``
+C_PROGRESS = C_REWARD + R.kernel_slot("progress_reward")  # 1: progress replaces the speed term
+C_DMG_W = C_REWARD + R.kernel_slot("damage_weight")
+C_SLOW_PEN = C_REWARD + R.kernel_slot("slow_penalty")
+C_END_REWARD = C_REWARD + R.kernel_slot("early_end_reward")  # an off-track or backwards end
+N_CFG = C_REWARD + len(R.KERNEL_NAMES)
 
 # --- per-step outputs --------------------------------------------------------------------------
-O_REWARD = 0
-O_TERM = 1  # 0 running, 1 off track, 2 backwards, 3 slow
-O_TRUNC = 2  # 1 when max steps reached (and not terminated)
-O_LAP_TIME = 3  # lap completed during this step, s; NaN if none
-O_DMG_INC = 4  # damage added during this step
-N_OUT = 5
+O_TRUNC = 0  # 1 when max steps reached (and not terminated)
+O_LAP_TIME = 1  # lap completed during this step, s; NaN if none
+O_REWARD_IN = 2  # what the reward is made of (``reward.parts`` reads it), in INPUT_NAMES order:
+O_REWARD = O_REWARD_IN + R.input_slot("reward")
+O_TERM = O_REWARD_IN + R.input_slot("end")  # 0 running, 1 off track, 2 backwards, 3 slow
+O_DMG_INC = O_REWARD_IN + R.input_slot("damage")  # damage added during this step
+O_VX = O_REWARD_IN + R.input_slot("speed_mps")
+O_ANGLE = O_REWARD_IN + R.input_slot("angle_rad")
+O_TRACKPOS = O_REWARD_IN + R.input_slot("track_pos")
+O_PROGRESS = O_REWARD_IN + R.input_slot("progress_mps")
+N_OUT = O_REWARD_IN + len(R.INPUT_NAMES)
 
 TERM_NONE = 0
 TERM_OFF_TRACK = 1
@@ -274,7 +295,7 @@ def _fiala(tan_alpha: float, stiffness: float, fmax: float, inv_fmax: float) -> 
 def fiala_lateral_force(tan_alpha: float, stiffness: float, fmax: float) -> float:
     """Fiala brush tyre: cubic in slip up to full sliding at ``3 fmax / C``, then ``-fmax``.
 
-    Cheaper than Pacejka at equal stiffness and peak (DESIGN.md) and saturates exactly at mu*Fz.
+    Cheaper than Pacejka at equal stiffness and peak and saturates exactly at mu*Fz.
     """
     if fmax <= 0.0:
         return 0.0
@@ -1038,11 +1059,10 @@ def _step_one(c: int, state: np.ndarray, actions: np.ndarray, integrate: np.ndar
     if integrate[c] == 0:
         _locate(st, geom, length)
         observe(st, geom, elev, cfg, lac_d, obs[c])
-        o[O_REWARD] = 0.0
-        o[O_TERM] = TERM_NONE
         o[O_TRUNC] = 0.0
         o[O_LAP_TIME] = np.nan
-        o[O_DMG_INC] = 0.0
+        for k in range(O_REWARD_IN, N_OUT):  # reward 0, running (TERM_NONE), nothing paid
+            o[k] = 0.0
         return
     dist0 = st[ST_DIST]
     control_step(st, actions[c], p, torque, gears, geom, elev, cfg, o)
@@ -1055,7 +1075,9 @@ def score_step(st: np.ndarray, o: np.ndarray, obs_row: np.ndarray, dist0: float,
                geom: np.ndarray, cfg: np.ndarray) -> None:
     """Reward, slow counter and end flags of one car after its control step and observation.
 
-    Shared by :func:`_step_one` and the race kernel, so both score a step the same way.
+    Shared by :func:`_step_one` and the race kernel, so both score a step the same way. The
+    reward follows ``sim.reward`` (its weights from ``cfg[C_REWARD:]``); what it is made of goes
+    to ``o[O_REWARD_IN:]`` for ``info["rewards"]``.
     """
     length = cfg[C_LENGTH]
     vx = st[ST_VX]
@@ -1083,10 +1105,14 @@ def score_step(st: np.ndarray, o: np.ndarray, obs_row: np.ndarray, dist0: float,
     elif cfg[C_TERM_SLOW] > 0.5 and st[ST_SLOW] >= cfg[C_SLOW_PATIENCE]:
         term = TERM_SLOW
     if term in (TERM_OFF_TRACK, TERM_BACKWARDS):
-        reward = -1.0
+        reward = cfg[C_END_REWARD]
     elif term == TERM_SLOW:
         reward = -cfg[C_SLOW_PEN]
     o[O_REWARD] = reward
+    o[O_VX] = vx
+    o[O_ANGLE] = angle
+    o[O_TRACKPOS] = track_pos
+    o[O_PROGRESS] = progress_mps
     o[O_TERM] = term
     o[O_TRUNC] = 1.0 if (term == TERM_NONE and st[ST_STEPS] >= cfg[C_MAX_STEPS]) else 0.0
 
@@ -1112,7 +1138,7 @@ def step_cars_parallel(state: np.ndarray, actions: np.ndarray, integrate: np.nda
                        out: np.ndarray) -> None:
     """:func:`step_cars` with cars spread over numba's threads (cars are independent).
 
-    For a vector env that owns the machine; training workers keep one thread each (DESIGN.md).
+    For a vector env that owns the machine; training workers keep one thread each (docs/sim.md).
     """
     for c in prange(state.shape[0]):
         _step_one(c, state, actions, integrate, p, torque, gears, geom, elev, cfg, lac_d, obs,
@@ -1185,3 +1211,37 @@ def reset_rows(state: np.ndarray, integrate: np.ndarray, cars: np.ndarray, s: np
         state[c, ST_PSI] = ref_h[i] + t * dh
         state[c, ST_IDX] = i
         integrate[c] = 0
+
+
+def drop_stale_cache(kernels: Iterable[Any], inputs: bytes, marker: str) -> None:
+    """Forget the cached compiled ``kernels`` when ``inputs`` changed since they were cached.
+
+    numba keys a function's cache on its *own* file's timestamp and freezes the globals it read
+    (the reward tables' indices here; ``kernels.py``'s functions, compiled into the race step):
+    after an edit elsewhere a cached kernel would run the old arithmetic. ``inputs`` are the
+    bytes that edit would change; their digest is kept in ``marker`` beside the cache.
+    """
+    kernels = list(kernels)
+    digest = hashlib.sha1(inputs).hexdigest()
+    try:
+        folder = Path(kernels[0]._cache.cache_path)
+    except AttributeError:  # a numba without the cache API: nothing cached to go stale
+        return
+    path = folder / marker
+    try:
+        if path.read_text(encoding="utf-8") == digest:
+            return
+    except OSError:
+        pass
+    for fn in kernels:
+        fn._cache.flush()
+    with contextlib.suppress(OSError):  # a read-only folder: numba does not cache there either
+        path.write_text(digest, encoding="utf-8")
+
+
+REWARD_LAYOUT = repr((R.KERNEL_NAMES, R.INPUT_NAMES)).encode()
+"""What this module's kernels take from ``sim.reward``: the order of its two tables."""
+
+drop_stale_cache((v for v in list(globals().values()) if getattr(v, "_cache", None) is not None
+                  and getattr(getattr(v, "py_func", None), "__module__", None) == __name__),
+                 REWARD_LAYOUT, "kernels.reward-layout-sha1")

@@ -32,7 +32,8 @@ import numpy as np
 from formula_tourney.agents.ddpg import DDPGAgent, configure_torch, save_checkpoint
 from formula_tourney.agents.noise import BrakeExplorationNoise
 from formula_tourney.agents.replay import make_buffer
-from formula_tourney.training.collect import RewardRule, SingleCarCollector
+from formula_tourney.sim.reward import RewardRule
+from formula_tourney.training.collect import SingleCarCollector
 from formula_tourney.training.envs import RunEnvs
 from formula_tourney.training.evaluate import run_test_episode, start_positions
 from formula_tourney.training.spec import RunSpec

@@ -1,9 +1,10 @@
 """Driving cars into the replay buffer: one car (FormulaRacing-v0) or N cars (the vector env).
 
 Both collectors take one action per car, step their env(s), store each car's transition in the
-car's lane of the buffer with the reward of a :class:`RewardRule`, keep each car's observation
-window (edge-padded at its episode's start, exactly as ``agents.replay.ObservationWindow`` and
-the buffer build it), and hand back the car-episodes that ended. The training loop owns acting,
+car's lane of the buffer with the reward the reward model's :class:`sim.reward.RewardRule` makes
+of the env's (its crash penalty and scale), keep each car's observation window (edge-padded at
+its episode's start, exactly as ``agents.replay.ObservationWindow`` and the buffer build it),
+and hand back the car-episodes that ended. The training loop owns acting,
 exploration and learning (and closes the envs); a test drives scripted actions through the same
 ``step``.
 
@@ -20,36 +21,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 
 from formula_tourney.agents.replay import ObservationWindow, ReplayBuffer
-from formula_tourney.agents.variants import AgentConfig
-
-RewardLike = TypeVar("RewardLike", float, np.ndarray)
-
-
-@dataclass(frozen=True)
-class RewardRule:
-    """How the env's reward becomes the reward a transition is stored with: less
-    ``crash_penalty`` on an early end, times ``scale``. The one owner of that rule: both
-    collectors and the demonstrations store through it, so a demonstration and an own
-    transition weigh alike, and a new reward setting is added here, not at every call site.
-    Without a penalty the product is the paper's, bit for bit."""
-
-    scale: float = 1.0
-    crash_penalty: float = 0.0
-
-    @classmethod
-    def of(cls, cfg: AgentConfig) -> RewardRule:
-        """The rule an agent's settings declare."""
-        return cls(scale=cfg.reward_scale, crash_penalty=cfg.crash_penalty)
-
-    def __call__(self, reward: RewardLike, terminated: bool | np.ndarray) -> RewardLike:
-        if self.crash_penalty:
-            reward = reward - self.crash_penalty * np.asarray(terminated, dtype=np.float64)
-        return reward * self.scale
+from formula_tourney.sim.reward import RewardRule
 
 
 @dataclass

@@ -28,7 +28,7 @@ from formula_tourney.agents.replay import ReplayBuffer
 from formula_tourney.bots.follower import Follower, FollowerConfig, _car_state
 from formula_tourney.bots.line_offsets import reference_offsets
 from formula_tourney.sim.env import DEFAULT_START_BEFORE_LINE_M
-from formula_tourney.training.collect import RewardRule
+from formula_tourney.sim.reward import RewardRule
 from formula_tourney.training.envs import RunEnvs
 from formula_tourney.training.spec import DEMO_BOT, RunSpec
 

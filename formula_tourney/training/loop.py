@@ -37,13 +37,9 @@ from formula_tourney.agents.replay import DemoMix, make_buffer
 from formula_tourney.results.folder import JobFolder
 from formula_tourney.results.layout import BEST_CHECKPOINT, LAST_CHECKPOINT
 from formula_tourney.results.metrics import model_clean_lap_s
+from formula_tourney.sim.reward import RewardRule
 from formula_tourney.training.budget import CpuClock, StopRule
-from formula_tourney.training.collect import (
-    RewardRule,
-    SingleCarCollector,
-    VectorCollector,
-    split_cars,
-)
+from formula_tourney.training.collect import SingleCarCollector, VectorCollector, split_cars
 from formula_tourney.training.demos import behaviour_clone, collect_demonstrations
 from formula_tourney.training.envs import RunEnvs
 from formula_tourney.training.evaluate import (

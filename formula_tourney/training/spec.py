@@ -11,12 +11,13 @@ the env's settings (``sim.config.EnvSettings``), the reference line and LAC, the
 (:class:`DemoSettings`). Keys an env override would share with the run (``lac``, ``max_steps``,
 ...) are not env settings at all, so setup and override can never both set one.
 
-Settings added after results layout 2 (:data:`NEWER_THAN_LAYOUT_2`: ``schedule.cars``,
-``schedule.env_steps``, ``demos``, the agent's ``crash_penalty``, the env's
-``progress_reward`` and others) are left out of :meth:`RunSpec.to_json` while at their
-defaults: a default run's ``config.json``, checkpoints and :meth:`RunSpec.digest` are byte for
-byte what they were before those settings existed, so a resumed tournament still recognises its
-finished jobs.
+Settings added during results layout 2 carry the mark ``added_in_layout`` on their Field
+(``field_marks``: ``schedule.cars``, ``schedule.env_steps``, ``demos``, the agent's
+``crash_penalty``, the env's ``progress_reward`` and others) and are left out of
+:meth:`RunSpec.to_json` while at their defaults: a default run's ``config.json``, checkpoints and
+:meth:`RunSpec.digest` are byte for byte what they were before those settings existed, so a
+resumed tournament still recognises its finished jobs. The mark ``beyond_paper`` names the
+settings of mechanisms the paper does not have (:meth:`RunSpec.beyond_paper`).
 """
 
 from __future__ import annotations
@@ -27,10 +28,19 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    TypeAdapter,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from formula_tourney.agents.variants import AgentConfig, get_variant, named_settings
 from formula_tourney.errors import UserInputError
+from formula_tourney.field_marks import added_in_layout, beyond_paper, marks
 from formula_tourney.lines.kinds import ReferenceKind
 from formula_tourney.results.identity import training_digest
 from formula_tourney.sim.catalog import check_track_name
@@ -66,6 +76,7 @@ class Schedule(_Frozen):
         "clock on a hard track (a run that crashes early spends hundreds of episodes in a few "
         "thousand steps); env steps fix the cost of a run and keep it deterministic. None: "
         "episodes alone.",
+        json_schema_extra=marks(added_in_layout=2),
     )
     max_steps: int = Field(
         1000, ge=1, description="Control steps per training episode (truncated at the end)."
@@ -92,6 +103,7 @@ class Schedule(_Frozen):
         "every test round drives each test track at the env's grip_scale (the run's own, which "
         "best checkpoint, promotion and the paper's tables read) and then at each of these; "
         "the tests table records each drive's grip and the reference limit at that grip.",
+        json_schema_extra=marks(added_in_layout=2),
     )
     budget_cpu_s: float | None = Field(
         None,
@@ -101,6 +113,7 @@ class Schedule(_Frozen):
         "process has spent this many CPU-seconds (time.process_time) since training started, "
         "without a further test round. CPU time, unlike wall time, does not grow with the "
         "other jobs sharing the machine. None: no CPU budget.",
+        json_schema_extra=marks(added_in_layout=2),
     )
     stop_at: Literal["none", "best-bot"] = Field(
         "none",
@@ -108,6 +121,7 @@ class Schedule(_Frozen):
         "round whose clean lap on the key track beats the follower bot on the min-curvature "
         "line (the best bot; with demonstrations also the demonstrator's lap); none: no lap "
         "does.",
+        json_schema_extra=marks(added_in_layout=2),
     )
 
     @field_validator("test_grip_scales")
@@ -128,6 +142,7 @@ class Schedule(_Frozen):
         "`test_every_episodes` count "
         "finished car-episodes; the agent's `updates_per_step` stays updates per stored "
         "transition (car-step), so a step of N cars earns N times as many updates.",
+        json_schema_extra=marks(added_in_layout=2),
     )
     traffic_bots: int = Field(
         0,
@@ -138,6 +153,7 @@ class Schedule(_Frozen):
         "alternately ahead and behind, 30-150 m apart) and the observation gets the 36 "
         "opponent sectors, so the model can learn to pass and defend; its tests drive alone "
         "with the same observation. 0: the paper's solo FormulaRacing-v0. Needs cars = 1.",
+        json_schema_extra=marks(added_in_layout=2),
     )
 
 
@@ -173,11 +189,13 @@ class DemoSettings(_Frozen):
         "run long (Nair et al. 2018; TD3+BC's scaling): the actor's loss gains bc_weight x "
         "mean|Q(s, mu(s))| x the mean over the batch's demonstration rows of ||mu(s) - a||^2, "
         "so the weight does not depend on the reward's scale (0 = off).",
+        json_schema_extra=marks(added_in_layout=2),
     )  # fmt: skip
     bc_q_filter: bool = Field(
         True, description="Clone a demonstrated action only where the critic rates it above "
         "the actor's own, Q(s, a) > Q(s, mu(s)) (Nair et al.'s Q-filter): the actor can outgrow "
         "the demonstrator once the critic knows better.",
+        json_schema_extra=marks(added_in_layout=2),
     )  # fmt: skip
 
     def demo_rows(self, batch_size: int) -> int:
@@ -212,10 +230,12 @@ class RunSpec(_Frozen):
         1, ge=1, le=256, description="torch threads in this process (one per worker measured best)."
     )
     demos: DemoSettings | None = Field(
-        None, description="Demonstrations by the follower bot (None: none, the paper's runs)."
+        None, description="Demonstrations by the follower bot (None: none, the paper's runs).",
+        json_schema_extra=marks(added_in_layout=2),
     )
     preset: str = Field(
-        "paper", description="The named preset (training.presets) the settings started from."
+        "paper", description="The named preset (training.presets) the settings started from.",
+        json_schema_extra=marks(added_in_layout=2),
     )
 
     @model_validator(mode="after")
@@ -285,32 +305,24 @@ class RunSpec(_Frozen):
         return out
 
     def _beyond_paper_settings(self) -> list[str]:
-        """``KEY VALUE`` for each of :data:`BEYOND_PAPER_SETTINGS` that differs from what the
-        run's preset gives (its value, else the paper's default): a preset's own choices are
-        named by "preset NAME", a user's change on top of it is named here."""
+        """``KEY VALUE`` for each agent or env setting marked ``beyond_paper`` that differs from
+        what the run's preset gives (its value, else the paper's default): a preset's own
+        choices are named by "preset NAME", a user's change on top of it is named here."""
         preset = get_preset(self.preset)
         preset_agent = preset.agent_overrides(self.agent.family, named_settings(self.variant))
         base = {"agent": {**_DEFAULTS["agent"], **preset_agent},
                 "env": {**_DEFAULTS["env"], **preset.env}}
         sections = {"agent": self.agent, "env": self.env}
         return [_setting_label(key, getattr(sections[section], key))
-                for section, keys in BEYOND_PAPER_SETTINGS.items() for key in keys
+                for section in ("agent", "env")
+                for key, field in _SECTIONS[section].model_fields.items() if beyond_paper(field)
                 if getattr(sections[section], key) != base[section][key]]  # fmt: skip
 
     def to_json(self) -> dict[str, Any]:
         """Plain JSON data (what config.json, checkpoints and worker messages carry); the
-        settings of :data:`NEWER_THAN_LAYOUT_2` are left out at their defaults (module
-        docstring)."""
+        settings marked ``added_in_layout`` are left out at their defaults (module docstring)."""
         data = self.model_dump(mode="json")
-        if data["demos"] is None:
-            del data["demos"]
-        for section, keys in NEWER_THAN_LAYOUT_2.items():
-            if section in data:
-                for key in keys:
-                    if data[section][key] == _DEFAULTS[section][key]:
-                        del data[section][key]
-        if data["preset"] == "paper":
-            del data["preset"]
+        _omit_newer_defaults(RunSpec, data)
         return data
 
     def digest(self) -> str:
@@ -345,27 +357,40 @@ def _problems(err: ValidationError) -> str:
     )
 
 
-NEWER_THAN_LAYOUT_2: dict[str, tuple[str, ...]] = {
-    "agent": ("crash_penalty", "epsilon_floor", "eval_ema_updates"),
-    "env": ("grip_scale_range", "grip_drying", "track_pos_weight", "progress_reward"),
-    "schedule": ("cars", "env_steps", "traffic_bots", "test_grip_scales", "budget_cpu_s",
-                 "stop_at"),
-    "demos": ("bc_weight", "bc_q_filter"),  # newer than the demonstrations themselves
+_SECTIONS: dict[str, type[BaseModel]] = {
+    "agent": AgentConfig, "env": EnvSettings, "schedule": Schedule, "demos": DemoSettings,
 }
-"""The settings :meth:`RunSpec.to_json` leaves out while at their defaults, by spec section."""
-
-BEYOND_PAPER_SETTINGS: dict[str, tuple[str, ...]] = {
-    "agent": ("crash_penalty", "epsilon_floor", "eval_ema_updates", "brake_explore_hold_steps"),
-    "env": ("track_pos_weight", "progress_reward"),
-}
-"""Settings of mechanisms the paper does not have: off their preset's value, a run says so."""
+"""The model of each section of a run specification."""
 
 _DEFAULTS: dict[str, dict[str, Any]] = {
-    section: model().model_dump(mode="json")
-    for section, model in (("agent", AgentConfig), ("env", EnvSettings), ("schedule", Schedule),
-                           ("demos", DemoSettings))
-}  # fmt: skip
+    section: model().model_dump(mode="json") for section, model in _SECTIONS.items()
+}
 """Each section's defaults as JSON, read from its model: the one owner of every default."""
+
+
+def _newer_defaults(model: type[BaseModel]) -> dict[str, Any]:
+    """The JSON default of each of ``model``'s settings marked ``added_in_layout``."""
+    return {
+        name: TypeAdapter(field.annotation).dump_python(
+            field.get_default(call_default_factory=True), mode="json")
+        for name, field in model.model_fields.items() if added_in_layout(field) is not None
+    }  # fmt: skip
+
+
+_NEWER_DEFAULTS: dict[type[BaseModel], dict[str, Any]] = {
+    model: _newer_defaults(model) for model in (RunSpec, *_SECTIONS.values())
+}
+
+
+def _omit_newer_defaults(model: type[BaseModel], data: dict[str, Any]) -> None:
+    """Delete from ``data`` (``model`` as JSON) each setting added within a layout that is at
+    its default, and the same in each section it holds."""
+    for name, default in _NEWER_DEFAULTS[model].items():
+        if name in data and data[name] == default:
+            del data[name]
+    for name, section in _SECTIONS.items():
+        if model is RunSpec and isinstance(data.get(name), dict):
+            _omit_newer_defaults(section, data[name])
 
 
 def build_run_spec(

@@ -25,8 +25,6 @@ the sector is empty).
 
 from __future__ import annotations
 
-import contextlib
-import hashlib
 import math
 from pathlib import Path
 
@@ -431,35 +429,8 @@ def step_race(state: np.ndarray, actions: np.ndarray, mode: np.ndarray, p: np.nd
 
 
 _CACHED = (resolve_pair, resolve_contacts, opponent_sensors, mark_near, step_race)
-_DIGEST_FILE = "lockstep_kernels.kernels-sha1"
 
-
-def _drop_stale_cache() -> None:
-    """Forget this module's compiled kernels when ``sim/kernels.py`` changed since they were
-    cached (the digest of that file is kept next to numba's cache of this module).
-
-    numba keys a function's cache on its *own* file's timestamp, but these kernels compile the
-    functions of ``sim/kernels.py`` into themselves: after an edit there (a new state column, new
-    physics) the cached race step would run the old arithmetic. Measured once, before this
-    check: a changed ``sim/kernels.py`` left the race step 1 ulp off the vector env, and a
-    changed ``N_STATE`` would have been worse.
-    """
-    digest = hashlib.sha1(Path(K.__file__).read_bytes()).hexdigest()
-    try:
-        folder = Path(step_race._cache.cache_path)
-    except AttributeError:  # a numba without the cache API: nothing cached to go stale
-        return
-    marker = folder / _DIGEST_FILE
-    try:
-        if marker.read_text(encoding="utf-8") == digest:
-            return
-    except OSError:
-        pass
-    for fn in _CACHED:
-        fn._cache.flush()
-    with contextlib.suppress(OSError):  # a read-only folder: numba does not cache there either
-        marker.write_text(digest, encoding="utf-8")
-
-
-_drop_stale_cache()
-
+# These kernels compile the functions of ``kernels.py`` into themselves (measured once, before
+# this check: a changed ``kernels.py`` left the race step 1 ulp off the vector env).
+K.drop_stale_cache(_CACHED, Path(K.__file__).read_bytes() + K.REWARD_LAYOUT,
+                   "lockstep_kernels.kernels-sha1")
