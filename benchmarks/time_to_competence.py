@@ -341,7 +341,7 @@ def run_entrant(task: dict[str, Any]) -> dict[str, Any]:
     """One training run in this process; CPU-seconds are this process's own."""
     import numpy as np
 
-    from formula_tourney.agents.ddpg import configure_torch
+    from formula_tourney.agents.core import configure_torch
     from formula_tourney.results.folder import JobFolder
     from formula_tourney.training.loop import train
     from formula_tourney.training.spec import RunSpec
@@ -414,7 +414,7 @@ def run_sb3(task: dict[str, Any]) -> dict[str, Any]:
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.logger import Logger
 
-    from formula_tourney.agents.ddpg import configure_torch
+    from formula_tourney.agents.core import configure_torch
     from formula_tourney.results.folder import JobFolder
     from formula_tourney.results.metrics import model_clean_lap_s
     from formula_tourney.training.evaluate import (

@@ -49,7 +49,7 @@ class UpdateResult(NamedTuple):
 
 class BCLoss(NamedTuple):
     """Behaviour cloning in the actor's loss: its weight, the demonstration rows of every batch
-    (its last ``rows`` rows, ``replay.DemoMix``'s layout) and whether the Q-filter applies."""
+    (its last ``rows`` rows, ``buffers.DemoMix``'s layout) and whether the Q-filter applies."""
 
     weight: float
     rows: int

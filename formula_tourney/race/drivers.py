@@ -12,7 +12,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from formula_tourney.agents.replay import ObservationWindow
+from formula_tourney.agents.buffers import ObservationWindow
 from formula_tourney.bots.follower import CarState, Follower
 from formula_tourney.sim import kernels as K
 

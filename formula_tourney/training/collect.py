@@ -2,7 +2,7 @@
 
 Both collectors take one action per car, step their env(s), store each car's transition in the
 car's lane of the buffer with the reward of a :class:`RewardRule`, keep each car's observation
-window (edge-padded at its episode's start, exactly as ``agents.replay.ObservationWindow`` and
+window (edge-padded at its episode's start, exactly as ``agents.buffers.ObservationWindow`` and
 the buffer build it), and hand back the car-episodes that ended. The training loop owns acting,
 exploration and learning (and closes the envs); a test drives scripted actions through the same
 ``step``.
@@ -24,7 +24,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from formula_tourney.agents.replay import ObservationWindow, ReplayBuffer
+from formula_tourney.agents.buffers import ObservationWindow, ReplayBuffer
 from formula_tourney.agents.variants import AgentConfig
 
 RewardLike = TypeVar("RewardLike", float, np.ndarray)
