@@ -67,9 +67,10 @@ def _batch(seed: int = 0):  # type: ignore[no-untyped-def]
 def test_the_registry_names_the_three_families_in_order() -> None:
     assert {"ddpg": DDPGAgent, "td3": TD3Agent, "sac": SACAgent} == ALGORITHMS
     for name, variant in ALL_VARIANTS.items():
-        assert type(make_agent(variant.model_copy(update={"hidden": (8, 8)}), D)) is ALGORITHMS[
-            variant.algorithm
-        ], name
+        assert (
+            type(make_agent(variant.model_copy(update={"hidden": (8, 8)}), D))
+            is ALGORITHMS[variant.algorithm]
+        ), name
 
 
 def test_a_family_registered_by_name_trains_and_round_trips(bandit, tmp_path: Path) -> None:

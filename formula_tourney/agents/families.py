@@ -28,9 +28,7 @@ def get_family(algorithm: str) -> type[Agent]:
     """The agent class registered as ``algorithm``; UserInputError naming the known ones."""
     family = ALGORITHMS.get(algorithm)
     if family is None:
-        raise UserInputError(
-            f"unknown algorithm {algorithm!r}; known: {', '.join(ALGORITHMS)}"
-        )
+        raise UserInputError(f"unknown algorithm {algorithm!r}; known: {', '.join(ALGORITHMS)}")
     return family
 
 
