@@ -1,7 +1,7 @@
 """What cloning in the actor's loss (``demos.bc_weight``) and the tests' average of the actor
 (``eval_ema_updates``) each cost per DDPG update.
 
-The same agent updates on the same mixed batches (``agents.replay.DemoMix``: online rows, then
+The same agent updates on the same mixed batches (``agents.buffers.DemoMix``: online rows, then
 demonstration rows) with and without the cloning term, and a second agent that keeps the
 average over 3 000 updates (``best-demos``'s) updates on them without it, in interleaved
 rounds in one process, one thread: the plain update is the anchor of both. Sizes are
@@ -25,9 +25,10 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from formula_tourney.agents.ddpg import DDPGAgent, configure_torch  # noqa: E402
+from formula_tourney.agents.buffers import DemoMix, ReplayBuffer, make_buffer  # noqa: E402
+from formula_tourney.agents.core import configure_torch  # noqa: E402
+from formula_tourney.agents.ddpg import DDPGAgent  # noqa: E402
 from formula_tourney.agents.mlp_update import BCLoss  # noqa: E402
-from formula_tourney.agents.replay import DemoMix, ReplayBuffer, make_buffer  # noqa: E402
 from formula_tourney.agents.variants import get_variant  # noqa: E402
 
 OBS_DIM = 60  # technical with LAC: the observation tuned-bc's demo part trains on

@@ -26,7 +26,8 @@ import sys  # noqa: E402
 from collections import Counter  # noqa: E402
 from typing import Any  # noqa: E402
 
-from formula_tourney.agents.ddpg import DDPGAgent, configure_torch, load_checkpoint  # noqa: E402
+from formula_tourney.agents.checkpoints import load_checkpoint  # noqa: E402
+from formula_tourney.agents.core import Agent, configure_torch  # noqa: E402
 from formula_tourney.results.folder import JobFolder  # noqa: E402
 from formula_tourney.results.layout import LAST_CHECKPOINT  # noqa: E402
 from formula_tourney.training.envs import RunEnvs  # noqa: E402
@@ -46,7 +47,7 @@ def crash_positions(folder: JobFolder, length_m: float) -> tuple[int, list[float
                         zip(off["start_s_m"], off["distance_m"], strict=True)]  # fmt: skip
 
 
-def clean_laps(agent: DDPGAgent, envs: RunEnvs, track: str, starts: list[float]) -> int:
+def clean_laps(agent: Agent, envs: RunEnvs, track: str, starts: list[float]) -> int:
     env = envs.make(track, test=True)
     drives = [run_test_episode(agent, env, track, s0, seed=k, record_trace=False)
               for k, s0 in enumerate(starts)]  # fmt: skip

@@ -35,9 +35,10 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from formula_tourney.agents.ddpg import DDPGAgent, configure_torch  # noqa: E402
+from formula_tourney.agents.buffers import ObservationWindow, make_buffer  # noqa: E402
+from formula_tourney.agents.core import configure_torch  # noqa: E402
+from formula_tourney.agents.families import make_agent  # noqa: E402
 from formula_tourney.agents.noise import BrakeExplorationNoise  # noqa: E402
-from formula_tourney.agents.replay import ObservationWindow, make_buffer  # noqa: E402
 from formula_tourney.agents.variants import get_variant  # noqa: E402
 
 configure_torch(1)  # as every training worker: one thread, denormals flushed
@@ -91,7 +92,7 @@ class Ours:
         self.env = env
         self.cfg = get_variant(variant, {"learning_starts": BATCH, "buffer_size": 100_000})
         obs_dim = int(np.prod(env.observation_space.shape))
-        self.agent = DDPGAgent(self.cfg, obs_dim, seed=0, device="cpu")
+        self.agent = make_agent(self.cfg, obs_dim, seed=0, device="cpu")
         self.buf = make_buffer(
             self.cfg.buffer_size, obs_dim, 3, prioritized=self.cfg.prioritized,
             gamma=self.cfg.gamma, n_step=self.cfg.n_step, window=self.cfg.window,

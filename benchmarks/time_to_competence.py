@@ -313,7 +313,7 @@ class _Greedy:
 def run_sb3(task: dict[str, Any]) -> dict[str, Any]:
     """SB3 SAC at its defaults on the run's env, tested as our runs are, on the same CPU clock
     and stop rule (``training.budget``); its milestones by ``results.competence``."""
-    from formula_tourney.agents.ddpg import configure_torch
+    from formula_tourney.agents.core import configure_torch
     from formula_tourney.results.folder import JobFolder
     from formula_tourney.results.metrics import model_clean_lap_s
     from formula_tourney.training.budget import CpuClock, StopRule, warm_up

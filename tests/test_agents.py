@@ -8,15 +8,24 @@ import numpy as np
 import pytest
 import torch
 
-from formula_tourney.agents.ddpg import DDPGAgent, load_checkpoint, save_checkpoint
+from formula_tourney.agents.buffers import ReplayBuffer, make_buffer
+from formula_tourney.agents.checkpoints import load_checkpoint, save_checkpoint
+from formula_tourney.agents.core import Agent
+from formula_tourney.agents.families import make_agent
 from formula_tourney.agents.noise import BrakeExplorationNoise, linear_epsilon
-from formula_tourney.agents.replay import ReplayBuffer, make_buffer
 from formula_tourney.agents.variants import VARIANTS, get_variant
 from formula_tourney.errors import UserInputError
 
 torch.set_num_threads(1)
 D = 6
 SMALL = {"hidden": (32, 24), "batch_size": 16, "lstm_state_units": 16, "lstm_hidden": 8}
+
+
+def _small(name: str) -> dict:
+    """SMALL for variant ``name``: the LSTM critic's sizes are the DDPG family's settings only."""
+    if get_variant(name).algorithm == "ddpg":
+        return SMALL
+    return {k: v for k, v in SMALL.items() if not k.startswith("lstm_")}
 
 
 def _buffer_for(cfg, n: int = 200, seed: int = 0, **kw) -> ReplayBuffer:
@@ -50,7 +59,7 @@ def test_registry_has_the_papers_ten_variants() -> None:
 
 def test_adopted_target_bootstraps_on_truncation_not_termination() -> None:
     cfg = get_variant("WIN1", SMALL)
-    agent = DDPGAgent(cfg, D, seed=0)
+    agent = make_agent(cfg, D, seed=0)
     buf = ReplayBuffer(10, D, 3, gamma=0.9)
     s = [np.full(D, v, np.float32) for v in (0.1, 0.2, 0.3, 0.4)]
     buf.add(s[0], np.zeros(3), 1.0, s[1], terminated=True, truncated=False)
@@ -68,7 +77,7 @@ def test_adopted_target_bootstraps_on_truncation_not_termination() -> None:
 
 def test_per_update_writes_the_papers_priority() -> None:
     cfg = get_variant("PER40k", {**SMALL, "per_lambda3": 0.3, "per_eps": 1e-2, "per_alpha": 0.5})
-    agent = DDPGAgent(cfg, D, seed=1)
+    agent = make_agent(cfg, D, seed=1)
     buf = _buffer_for(cfg, alpha=cfg.per_alpha, lambda3=cfg.per_lambda3, eps=cfg.per_eps)
     batch = buf.sample(16)
     before = copy.deepcopy(agent)
@@ -135,10 +144,10 @@ def test_epsilon_floor_clips_the_papers_line_from_below() -> None:
 )  # fmt: skip
 def test_same_seed_same_weights_after_updates(name: str, extra: dict) -> None:
     """Every family, windows and n-step included for TD3 and SAC: same seed, same weights."""
-    cfg = get_variant(name, {**SMALL, "buffer_size": 1000, **extra})
+    cfg = get_variant(name, {**_small(name), "buffer_size": 1000, **extra})
 
-    def run(seed: int) -> DDPGAgent:
-        agent = DDPGAgent(cfg, D, seed=seed)
+    def run(seed: int) -> Agent:
+        agent = make_agent(cfg, D, seed=seed)
         buf = _buffer_for(cfg, seed=seed)
         for _ in range(10):
             agent.update(buf.sample(cfg.batch_size), buf)
@@ -155,7 +164,7 @@ def test_same_seed_same_weights_after_updates(name: str, extra: dict) -> None:
 
 def test_actor_ranges_and_lstm_critic_reads_past_actions() -> None:
     cfg = get_variant("LSTM4", SMALL)
-    agent = DDPGAgent(cfg, D, seed=0)
+    agent = make_agent(cfg, D, seed=0)
     obs = torch.randn(64, 4, D) * 10
     act = agent.actor(obs)
     assert act.shape == (64, 3)
@@ -170,7 +179,7 @@ def test_actor_ranges_and_lstm_critic_reads_past_actions() -> None:
 
 def test_checkpoint_round_trip_weights_only(tmp_path) -> None:
     cfg = get_variant("WIN4", SMALL)
-    agent = DDPGAgent(cfg, D, seed=0)
+    agent = make_agent(cfg, D, seed=0)
     path = save_checkpoint(agent, tmp_path / "a.pt", extra={"episode": 3})
     loaded, extra = load_checkpoint(path)
     assert extra == {"episode": 3} and loaded.cfg == cfg
@@ -182,7 +191,7 @@ def test_checkpoint_round_trip_weights_only(tmp_path) -> None:
 
 
 def _tampered(tmp_path, name: str, change) -> object:
-    state = DDPGAgent(get_variant("WIN1", SMALL), D, seed=0).state_dict()
+    state = make_agent(get_variant("WIN1", SMALL), D, seed=0).state_dict()
     change(state)
     torch.save(state, tmp_path / name)
     return tmp_path / name
@@ -212,7 +221,7 @@ def test_ddpg_learns_a_contextual_bandit() -> None:
     cfg = get_variant(
         "WIN1", {"hidden": (64, 64), "batch_size": 64, "actor_lr": 1e-3, "critic_lr": 3e-3}
     )
-    agent = DDPGAgent(cfg, 2, seed=0)
+    agent = make_agent(cfg, 2, seed=0)
     buf = ReplayBuffer(5000, 2, 3, seed=0)
     rng = np.random.default_rng(0)
     for _ in range(2000):
@@ -230,7 +239,7 @@ def test_ddpg_learns_a_contextual_bandit() -> None:
 @pytest.mark.parametrize("name", ["WIN4", "LSTM4"])
 def test_q_pair_equals_two_critic_evaluations(name: str) -> None:
     """The shared-state-path evaluation gives exactly Q(s, a) and Q(s, mu(s))."""
-    agent = DDPGAgent(get_variant(name, SMALL), D, seed=3)
+    agent = make_agent(get_variant(name, _small(name)), D, seed=3)
     obs = torch.randn(32, 4, D)
     a, past = torch.rand(32, 3), torch.rand(32, 3, 3)
     with torch.no_grad():
@@ -244,8 +253,8 @@ def test_q_pair_equals_two_critic_evaluations(name: str) -> None:
 def test_hand_written_update_matches_autograd(name: str) -> None:
     """The MLP critic's autograd-free update gives the autograd update's weights and priorities
     (also across a change of batch size, which reallocates its buffers)."""
-    cfg = get_variant(name, {**SMALL, "buffer_size": 1000})
-    manual, reference = DDPGAgent(cfg, D, seed=4), DDPGAgent(cfg, D, seed=4)
+    cfg = get_variant(name, {**_small(name), "buffer_size": 1000})
+    manual, reference = make_agent(cfg, D, seed=4), make_agent(cfg, D, seed=4)
     assert manual._mlp_update is not None
     kw = {"alpha": cfg.per_alpha, "lambda3": cfg.per_lambda3} if cfg.prioritized else {}
     buf_m, buf_r = _buffer_for(cfg, seed=5, **kw), _buffer_for(cfg, seed=5, **kw)
@@ -255,7 +264,7 @@ def test_hand_written_update_matches_autograd(name: str) -> None:
         np.testing.assert_allclose(info_m, info_r, rtol=1e-4, atol=1e-6)
         if cfg.prioritized:
             np.testing.assert_allclose(manual.last_priorities, reference.last_priorities, rtol=1e-4)
-    fresh = DDPGAgent(cfg, D, seed=4)
+    fresh = make_agent(cfg, D, seed=4)
     for key in ("actor", "critic", "actor_target", "critic_target"):
         sm, sr = getattr(manual, key).state_dict(), getattr(reference, key).state_dict()
         s0 = getattr(fresh, key).state_dict()
@@ -273,7 +282,7 @@ def test_hand_written_update_matches_autograd(name: str) -> None:
 
 @pytest.mark.parametrize("name", ["WIN4", "LSTM4"])
 def test_act_equals_the_actor_module(name: str) -> None:
-    agent = DDPGAgent(get_variant(name, SMALL), D, seed=2)
+    agent = make_agent(get_variant(name, _small(name)), D, seed=2)
     window = np.random.default_rng(0).normal(size=(4, D)).astype(np.float32)
     with torch.no_grad():
         expected = agent.actor(torch.from_numpy(window)[None])[0].numpy()
@@ -281,7 +290,7 @@ def test_act_equals_the_actor_module(name: str) -> None:
 
 
 def test_device_is_chosen_at_run_time() -> None:
-    from formula_tourney.agents.ddpg import resolve_device
+    from formula_tourney.agents.core import resolve_device
 
     assert resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
     if not torch.cuda.is_available():
@@ -293,8 +302,8 @@ def test_device_is_chosen_at_run_time() -> None:
 def test_deepcopy_is_an_independent_agent_that_keeps_learning(name: str) -> None:
     """The copy keeps learning on its own networks (SAC has no target actor: the critic's
     target is the one checked, for every family)."""
-    cfg = get_variant(name, SMALL)
-    agent = DDPGAgent(cfg, D, seed=3)
+    cfg = get_variant(name, _small(name))
+    agent = make_agent(cfg, D, seed=3)
     buf = _buffer_for(cfg)
     batch = buf.sample(16)
     agent.update(batch, buf)

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from formula_tourney.agents.ddpg import DDPGAgent
+from formula_tourney.agents.buffers import DemoMix, ReplayBuffer, make_buffer
+from formula_tourney.agents.families import make_agent
 from formula_tourney.agents.mlp_update import BCLoss
-from formula_tourney.agents.replay import DemoMix, ReplayBuffer, make_buffer
 from formula_tourney.agents.variants import AgentConfig, get_variant
 from formula_tourney.errors import UserInputError
 from formula_tourney.training.spec import DemoSettings, build_run_spec
@@ -50,7 +50,7 @@ def test_the_actor_loss_gains_the_q_filtered_mse_to_the_demonstrated_actions(
     demonstration rows of m_i ||mu(s_i) - a_i||^2, computed here by hand from the networks as
     they were before the step; the batch has rows the filter keeps and rows it drops."""
     cfg = get_variant("WIN1", SMALL)
-    agent = DDPGAgent(cfg, D, seed=4)
+    agent = make_agent(cfg, D, seed=4)
     mix = _mix(cfg)
     batch = mix.sample(16)
     assert batch.from_demos is not None and batch.from_demos.sum() == 6
@@ -66,7 +66,7 @@ def test_the_actor_loss_gains_the_q_filtered_mse_to_the_demonstrated_actions(
     expected = -q_mu.mean() + 0.7 * q_mu.abs().mean() / 6 * (mse * keep).sum()
     info = agent.update(batch, None, BCLoss(0.7, 6, q_filter))
     assert info.actor_loss == pytest.approx(float(expected), rel=1e-5)
-    plain = DDPGAgent(cfg, D, seed=4).update(batch, None)
+    plain = make_agent(cfg, D, seed=4).update(batch, None)
     assert plain.actor_loss == pytest.approx(float(-q_mu.mean()), rel=1e-5)
     assert info.actor_loss > plain.actor_loss  # the term is there, and positive
 
@@ -74,7 +74,7 @@ def test_the_actor_loss_gains_the_q_filtered_mse_to_the_demonstrated_actions(
 @pytest.mark.parametrize("name", ["WIN1", "WIN4", "PER40k"])
 def test_the_hand_written_cloning_gradient_matches_autograd(name: str) -> None:
     cfg = get_variant(name, SMALL)
-    manual, reference = DDPGAgent(cfg, D, seed=4), DDPGAgent(cfg, D, seed=4)
+    manual, reference = make_agent(cfg, D, seed=4), make_agent(cfg, D, seed=4)
     assert manual._mlp_update is not None
     mix_m, mix_r = _mix(cfg), _mix(cfg)
     bc = BCLoss(0.7, 6)
@@ -99,7 +99,7 @@ def test_cloning_pulls_the_actor_towards_the_demonstrated_actions(name: str) -> 
     obs, a = torch.from_numpy(demos.observations), torch.from_numpy(demos.actions)
 
     def mse_after(bc: BCLoss | None) -> float:
-        agent = DDPGAgent(cfg, D, seed=1)
+        agent = make_agent(cfg, D, seed=1)
         for _ in range(300):
             agent.update(mix.sample(16), None, bc)
         with torch.no_grad():

@@ -1,4 +1,4 @@
-"""TD3 and SAC as settings of the one update: targets and log-probs by hand, delay, temperature,
+"""The TD3 and SAC families: targets and log-probs by hand, delay, temperature,
 learning, checkpoints and copies, the paper's ten unchanged, and "all+beyond" entrants."""
 
 from __future__ import annotations
@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 import torch
 
-from formula_tourney.agents.ddpg import DDPGAgent, load_checkpoint, save_checkpoint
-from formula_tourney.agents.replay import ReplayBuffer, make_buffer
+from formula_tourney.agents.buffers import ReplayBuffer, make_buffer
+from formula_tourney.agents.checkpoints import load_checkpoint, save_checkpoint
+from formula_tourney.agents.families import make_agent
 from formula_tourney.agents.variants import (
     ALL_VARIANTS,
     BEYOND_PAPER_VARIANTS,
@@ -117,7 +118,7 @@ def _tiny_batch(b: int = 5, seed: int = 0) -> tuple[torch.Tensor, ...]:
 def test_td3_target_is_clipped_double_q_at_the_smoothed_target_action() -> None:
     """y = r + d min_j Q'_j(s', clip(mu'(s') + clip(N(0, s), -c, c), box)), computed by hand."""
     cfg = get_variant("TD3", {**SMALL, "policy_noise": 0.4, "noise_clip": 0.3})
-    agent = DDPGAgent(cfg, D, seed=0)
+    agent = make_agent(cfg, D, seed=0)
     with torch.no_grad():  # a target actor at full throttle, so the smoothing leaves the box
         agent.actor_target.out.bias[1] += 6.0
     rewards, discounts, next_obs, windows = _tiny_batch()
@@ -141,7 +142,7 @@ def test_td3_target_is_clipped_double_q_at_the_smoothed_target_action() -> None:
 def test_sac_target_is_soft_clipped_double_q_at_a_policy_sample() -> None:
     """y = r + d (min_j Q'_j(s', a') - alpha log pi(a'|s')), a' ~ pi(.|s'), by hand."""
     cfg = get_variant("SAC", {**SMALL, "alpha_init": 0.3})
-    agent = DDPGAgent(cfg, D, seed=1)
+    agent = make_agent(cfg, D, seed=1)
     assert agent.actor_target is None
     rewards, discounts, next_obs, windows = _tiny_batch(seed=1)
     x = next_obs.reshape(5, -1).double().numpy()
@@ -163,7 +164,7 @@ def test_sac_target_is_soft_clipped_double_q_at_a_policy_sample() -> None:
 
 
 def test_sac_log_prob_carries_the_squash_and_the_affine_correction() -> None:
-    actor = DDPGAgent(get_variant("SAC", SMALL), D, seed=2).actor
+    actor = make_agent(get_variant("SAC", SMALL), D, seed=2).actor
     rng = np.random.default_rng(0)
     mean, log_std = rng.normal(size=(64, 3)), rng.uniform(-1.5, 0.5, (64, 3))
     u = mean + np.exp(log_std) * rng.normal(size=(64, 3)) * 2
@@ -196,7 +197,7 @@ def test_sac_log_prob_carries_the_squash_and_the_affine_correction() -> None:
 # --- update mechanics ---------------------------------------------------------------------------
 def test_td3_steps_actor_and_targets_every_policy_delay_th_update() -> None:
     cfg = get_variant("TD3", {**SMALL, "policy_delay": 3, "buffer_size": 1000})
-    agent = DDPGAgent(cfg, D, seed=0)
+    agent = make_agent(cfg, D, seed=0)
     buf = _buffer_for(cfg)
 
     def snapshot() -> dict[str, list[torch.Tensor]]:
@@ -222,7 +223,7 @@ def test_sac_temperature_moves_toward_the_target_entropy() -> None:
     buf = _buffer_for(get_variant("SAC", SMALL))
     obs = torch.from_numpy(buf.sample(256).observations)
     for target_entropy, direction in ((-8.0, -1.0), (6.0, 1.0)):
-        agent = DDPGAgent(get_variant("SAC", {**SMALL, "target_entropy": target_entropy}), D,
+        agent = make_agent(get_variant("SAC", {**SMALL, "target_entropy": target_entropy}), D,
                           seed=0)  # fmt: skip
         with torch.no_grad():
             entropy = -float(agent.actor.sample(obs, torch.Generator().manual_seed(0))[1].mean())
@@ -242,7 +243,7 @@ def test_sac_temperature_moves_toward_the_target_entropy() -> None:
 def test_per_weights_and_priorities_use_the_papers_rule_on_the_first_critic(name: str) -> None:
     cfg = get_variant(name, {**SMALL, "prioritized": True, "buffer_size": 1000,
                              "per_lambda3": 0.3, "per_eps": 1e-2})  # fmt: skip
-    agent = DDPGAgent(cfg, D, seed=1)
+    agent = make_agent(cfg, D, seed=1)
     buf = _buffer_for(cfg, alpha=cfg.per_alpha, lambda3=cfg.per_lambda3, eps=cfg.per_eps)
     agent.update(buf.sample(64), buf)  # priorities now differ, so importance weights do
     batch = buf.sample(16)
@@ -269,10 +270,10 @@ def test_per_weights_and_priorities_use_the_papers_rule_on_the_first_critic(name
 def test_explore_samples_for_sac_and_is_act_for_ddpg_and_td3() -> None:
     window = np.random.default_rng(0).normal(size=(1, D)).astype(np.float32)
     for name in ("WIN1", "TD3"):
-        agent = DDPGAgent(get_variant(name, SMALL), D, seed=0)
+        agent = make_agent(get_variant(name, SMALL), D, seed=0)
         assert agent.cfg.uses_action_noise
         np.testing.assert_array_equal(agent.explore(window), agent.act(window))
-    sac = DDPGAgent(get_variant("SAC", SMALL), D, seed=0)
+    sac = make_agent(get_variant("SAC", SMALL), D, seed=0)
     assert not sac.cfg.uses_action_noise
     greedy = sac.act(window)
     assert np.array_equal(greedy, sac.act(window))  # act is deterministic
@@ -294,7 +295,7 @@ def test_td3_and_sac_learn_a_contextual_bandit(name: str, updates: int) -> None:
     overrides = {"hidden": (64, 64), "batch_size": 64, "actor_lr": 1e-3, "critic_lr": 3e-3}
     if name == "SAC":
         overrides["alpha_lr"] = 3e-3
-    agent = DDPGAgent(get_variant(name, overrides), 2, seed=0)
+    agent = make_agent(get_variant(name, overrides), 2, seed=0)
     buf = ReplayBuffer(5000, 2, 3, seed=0)
     rng = np.random.default_rng(0)
     for _ in range(2000):
@@ -313,7 +314,7 @@ def test_td3_and_sac_learn_a_contextual_bandit(name: str, updates: int) -> None:
 @pytest.mark.parametrize("name", ["TD3", "SAC"])
 def test_checkpoint_round_trip_carries_networks_alpha_and_noise(name: str, tmp_path: Path) -> None:
     cfg = get_variant(name, {**SMALL, "buffer_size": 1000})
-    agent = DDPGAgent(cfg, D, seed=0)
+    agent = make_agent(cfg, D, seed=0)
     buf = _buffer_for(cfg)
     for _ in range(3):
         agent.update(buf.sample(16))
@@ -342,7 +343,7 @@ NEW_FIELDS = {
     "crash_penalty": 0.0, "epsilon_floor": 0.0, "eval_ema_updates": 0,
 }  # fmt: skip
 # AgentConfig().model_dump(mode="json") and each paper variant's changes from it, before
-# TD3 and SAC existed (issue 11, item 3)
+# TD3 and SAC existed
 DEFAULTS_BEFORE = {
     "name": "WIN1", "family": "DDPG", "window": 1, "lstm_critic": False, "lstm_hidden": 64,
     "lstm_state_units": 128, "n_step": 1, "prioritized": False, "buffer_size": 1000000,
@@ -396,8 +397,8 @@ def test_td3_and_sac_are_registered_beyond_the_paper() -> None:
 @pytest.mark.parametrize(
     ("name", "overrides", "message"),
     [
-        ("TD3", {"lstm_critic": True}, "lstm_critic is supported for algorithm ddpg only"),
-        ("SAC", {"lstm_critic": True}, "lstm_critic is supported for algorithm ddpg only"),
+        ("TD3", {"lstm_critic": True}, "lstm_critic apply to algorithm ddpg only"),
+        ("SAC", {"lstm_critic": True}, "lstm_critic apply to algorithm ddpg only"),
         ("WIN1", {"policy_delay": 3}, "policy_delay apply to algorithm td3 only"),
         ("SAC", {"policy_noise": 0.1}, "policy_noise apply to algorithm td3 only"),
         ("TD3", {"alpha_init": 0.5}, "alpha_init apply to algorithm sac only"),

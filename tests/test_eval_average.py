@@ -14,8 +14,9 @@ import pytest
 import torch
 from training_fixtures import SMALL, ring_track
 
-from formula_tourney.agents.ddpg import DDPGAgent, load_checkpoint, save_checkpoint
-from formula_tourney.agents.replay import make_buffer
+from formula_tourney.agents.buffers import make_buffer
+from formula_tourney.agents.checkpoints import load_checkpoint, save_checkpoint
+from formula_tourney.agents.families import make_agent
 from formula_tourney.agents.variants import AgentConfig, get_variant
 from formula_tourney.errors import UserInputError
 from formula_tourney.sim.env import FormulaRacingEnv
@@ -47,7 +48,7 @@ def test_the_average_moves_a_1_over_n_step_towards_the_actor_after_each_actor_st
     """WIN1 (the hand-written update, an actor step every update) and TD3 (autograd, the actor
     stepping every second update): e_k = e_{k-1} + (a_k - e_{k-1}) / 4 in float64 by hand."""
     cfg = get_variant(name, {"hidden": (32, 24), "batch_size": 16, "eval_ema_updates": 4})
-    agent = DDPGAgent(cfg, D, seed=0)
+    agent = make_agent(cfg, D, seed=0)
     buf = _filled_buffer(cfg)
     expected = _flat(agent.actor)
     np.testing.assert_array_equal(_flat(agent.actor_eval), expected)  # starts as the actor
@@ -64,9 +65,9 @@ def test_the_average_moves_a_1_over_n_step_towards_the_actor_after_each_actor_st
 
 def test_act_eval_is_the_average_and_act_the_online_actor() -> None:
     window = np.random.default_rng(1).normal(size=(1, D)).astype(np.float32)
-    plain = DDPGAgent(get_variant("WIN1", {"hidden": (32, 24), "batch_size": 16}), D, seed=0)
+    plain = make_agent(get_variant("WIN1", {"hidden": (32, 24), "batch_size": 16}), D, seed=0)
     assert plain.actor_eval is None and "actor_eval" not in plain.state_dict()
-    averaged = DDPGAgent(get_variant("WIN1", {"hidden": (32, 24), "batch_size": 16,
+    averaged = make_agent(get_variant("WIN1", {"hidden": (32, 24), "batch_size": 16,
                                               "eval_ema_updates": 3}), D, seed=0)  # fmt: skip
     buf = _filled_buffer(averaged.cfg)
     for _ in range(5):
@@ -83,7 +84,7 @@ def test_a_test_drive_takes_the_averaged_actors_actions() -> None:
     """An average set to brake fully leaves the car at rest (the slow-progress end), while the
     online actor, set to full throttle, drives away: the test is the average's."""
     cfg = get_variant("WIN1", {"hidden": (32, 24), "eval_ema_updates": 100})
-    agent = DDPGAgent(cfg, 29, seed=0)
+    agent = make_agent(cfg, 29, seed=0)
     with torch.no_grad():
         for actor, throttle in ((agent.actor, 20.0), (agent.actor_eval, -20.0)):
             actor.out.weight.zero_()
@@ -96,7 +97,7 @@ def test_a_test_drive_takes_the_averaged_actors_actions() -> None:
 
 def test_checkpoints_carry_the_average_and_refuse_one_without_it(tmp_path: Path) -> None:
     cfg = get_variant("WIN1", {"hidden": (32, 24), "batch_size": 16, "eval_ema_updates": 5})
-    agent = DDPGAgent(cfg, D, seed=0)
+    agent = make_agent(cfg, D, seed=0)
     buf = _filled_buffer(cfg)
     for _ in range(4):
         agent.update(buf.sample(16))
@@ -114,7 +115,7 @@ def test_checkpoints_carry_the_average_and_refuse_one_without_it(tmp_path: Path)
 
 
 def test_a_warm_start_copies_the_actor_into_the_average() -> None:
-    agent = DDPGAgent(get_variant("WIN1", {"hidden": (32, 24), "eval_ema_updates": 50}), D, seed=0)
+    agent = make_agent(get_variant("WIN1", {"hidden": (32, 24), "eval_ema_updates": 50}), D, seed=0)
     with torch.no_grad():
         agent.actor.out.bias.add_(1.0)  # what behaviour cloning does: the actor moves alone
     assert not np.array_equal(_flat(agent.actor_eval), _flat(agent.actor))

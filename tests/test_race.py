@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from simtracks import stadium
 
-from formula_tourney.agents.ddpg import DDPGAgent, save_checkpoint
+from formula_tourney.agents.checkpoints import save_checkpoint
+from formula_tourney.agents.ddpg import DDPGAgent
 from formula_tourney.errors import UserInputError
 from formula_tourney.race.entrants import bot_entrant, build_entrants, model_entrant
 from formula_tourney.race.grid import grid_slots

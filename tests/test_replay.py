@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from formula_tourney.agents.replay import (
+from formula_tourney.agents.buffers import (
     ObservationWindow,
     PrioritizedReplayBuffer,
     ReplayBuffer,

@@ -314,7 +314,8 @@ def test_replay_end_to_end(tmp_path: Path, capsys) -> None:
     import gymnasium as gym
 
     import formula_tourney  # noqa: F401 (registers the env)
-    from formula_tourney.agents.ddpg import DDPGAgent, save_checkpoint
+    from formula_tourney.agents.checkpoints import save_checkpoint
+    from formula_tourney.agents.ddpg import DDPGAgent
     from formula_tourney.training.spec import build_run_spec
 
     env = gym.make("FormulaRacing-v0", config={"track": "oval"})

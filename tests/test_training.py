@@ -269,7 +269,8 @@ def test_run_envs_draw_the_reference_line_for_the_runs_own_car(ring_tracks, monk
 
 
 def test_cli_eval_and_replay_refuse_bad_checkpoints_in_one_line(tmp_path, capsys) -> None:
-    from formula_tourney.agents.ddpg import DDPGAgent, save_checkpoint
+    from formula_tourney.agents.checkpoints import save_checkpoint
+    from formula_tourney.agents.ddpg import DDPGAgent
     from formula_tourney.cli import main
 
     agent = DDPGAgent(get_variant("WIN1", SMALL), 29, seed=0)

@@ -17,13 +17,14 @@ import pytest
 import torch
 from training_fixtures import SMALL, ring_track
 
-from formula_tourney.agents.ddpg import DDPGAgent, load_checkpoint
-from formula_tourney.agents.replay import (
+from formula_tourney.agents.buffers import (
     DemoMix,
     OnlinePriorities,
     PrioritizedReplayBuffer,
     ReplayBuffer,
 )
+from formula_tourney.agents.checkpoints import load_checkpoint
+from formula_tourney.agents.ddpg import DDPGAgent
 from formula_tourney.agents.variants import get_variant
 from formula_tourney.errors import UserInputError
 from formula_tourney.results.folder import JobFolder

@@ -1,11 +1,11 @@
 """The DDPG update for the MLP actor and critic with hand-written backward passes.
 
-Same mathematics as the autograd update in ``ddpg.py`` (equations (1)-(5) there), for every
-variant whose critic is :class:`MLPCritic` (WIN, MS, PER). On one CPU thread the autograd
-engine and its ~160 small operators cost more than a quarter on top of the update's GEMMs
-(``benchmarks/learner_throughput.py`` times both updates side by side). Written by hand the
-update is ~60 operators, all writing into buffers allocated once per batch size (``out=``),
-with no graph to build:
+Same mathematics as the autograd update of the DDPG family (``core.py``'s skeleton with
+``ddpg.py``'s equations (1)-(5)), for every DDPG variant whose critic is :class:`MLPCritic`
+(WIN, MS, PER). On one CPU thread the autograd engine and its ~160 small operators cost more
+than a quarter on top of the update's GEMMs (``benchmarks/learner_throughput.py`` times both
+updates side by side). Written by hand the update is ~60 operators, all writing into buffers
+allocated once per batch size (``out=``), with no graph to build:
 
 * forward: ``h = relu(x W^T + b)`` per layer (``addmm`` into a buffer, then ``relu_``); the
   actor's is :class:`~formula_tourney.agents.networks.ActorPass`, which acting runs too;
@@ -49,7 +49,7 @@ class UpdateResult(NamedTuple):
 
 class BCLoss(NamedTuple):
     """Behaviour cloning in the actor's loss: its weight, the demonstration rows of every batch
-    (its last ``rows`` rows, ``replay.DemoMix``'s layout) and whether the Q-filter applies."""
+    (its last ``rows`` rows, ``buffers.DemoMix``'s layout) and whether the Q-filter applies."""
 
     weight: float
     rows: int

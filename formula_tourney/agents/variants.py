@@ -1,53 +1,48 @@
-"""The paper's DDPG variants, and TD3 and SAC beyond it, as configurations of the one update rule.
+"""The registered variants, and ``AgentConfig``: every setting of an agent, validated once.
 
-A variant never copies the algorithm: WIN1/4/8 set the window ``w`` fed to actor and critic,
-LSTM4/8 switch the critic to the LSTM critic over a window of ``w`` states and actions, MS2/3/4
-set the n of the multi-step target, PER40k/PER1M switch on prioritized replay with that buffer
-size. Beyond the paper, ``algorithm`` selects TD3 or SAC in the same update (``ddpg.py``): DDPG
-is TD3 with one critic, no target smoothing and no delay (Stable-Baselines3's view), and SAC
-swaps the deterministic actor for a squashed Gaussian and adds the entropy terms; replay,
-windows, n-step, PER and the adopted target are shared. Every field carries a description, so
-``--help``, tournament files and error messages all read from this one place.
+A variant is a configuration, never a copy of an algorithm: WIN1/4/8 set the window ``w`` fed to
+actor and critic, LSTM4/8 switch the DDPG critic to the LSTM critic over a window of ``w``
+states and actions, MS2/3/4 set the n of the multi-step target, PER40k/PER1M switch on
+prioritized replay with that buffer size; TD3 and SAC (beyond the paper) are variants of their
+own families. ``algorithm`` names the family (``families.py``), ``family`` the group a
+tournament promotes the best entrant of. :class:`AgentConfig` joins the settings every family
+shares (:class:`SharedSettings`) with each family's own (declared in its module), under flat
+keys, so tournament files, presets and ``train --set`` name them the same way; a family's
+setting set on a variant of another family is an error, not a silent no-op. Every field carries
+a description, so ``--help``, tournament files and error messages all read from this one place.
 """
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from formula_tourney.agents.families import ALGORITHMS
 from formula_tourney.errors import UserInputError
 from formula_tourney.field_marks import marks
 from formula_tourney.sim.reward import BY_NAME as REWARD_SETTINGS
 
-Family = Literal["DDPG", "LSTM", "MS", "PER", "TD3", "SAC"]
-Algorithm = Literal["ddpg", "td3", "sac"]
-PAPER_FAMILIES: tuple[str, ...] = ("DDPG", "LSTM", "MS", "PER")
-FAMILIES: tuple[str, ...] = (*PAPER_FAMILIES, "TD3", "SAC")
-ALGORITHM_FAMILIES: dict[str, tuple[str, ...]] = {
-    "ddpg": PAPER_FAMILIES, "td3": ("TD3",), "sac": ("SAC",),
-}  # fmt: skip
-"""The families an algorithm's variants may belong to (a TD3 entrant never competes as PER)."""
-TD3_FIELDS: tuple[str, ...] = ("policy_noise", "noise_clip", "policy_delay")
-SAC_FIELDS: tuple[str, ...] = ("alpha_init", "alpha_lr", "target_entropy")
 
-
-class AgentConfig(BaseModel):
-    """Hyperparameters of one DDPG variant (the paper's Sections "Algorithms" and "Extensions")."""
+class SharedSettings(BaseModel):
+    """The settings every family's update reads (the paper's Sections "Algorithms" and
+    "Extensions"); :class:`AgentConfig` adds each family's own."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     name: str = Field("WIN1", description="Variant name as registered (e.g. WIN4, PER1M).")
-    family: Family = Field(
+    family: str = Field(
         "DDPG",
-        description="Algorithm family: the paper's DDPG (the WIN variants), LSTM, MS or PER, or "
-        "TD3 or SAC beyond the paper; tournaments promote the best entrant of each family.",
+        description="Tournament family: the paper's DDPG (the WIN variants), LSTM, MS or PER, or "
+        "TD3 or SAC beyond the paper; tournaments promote the best entrant of each family. It "
+        "must be one its algorithm's variants may carry.",
     )
-    algorithm: Algorithm = Field(
+    algorithm: str = Field(
         "ddpg",
-        description="Update rule: ddpg (the paper's: one critic, deterministic actor), td3 "
-        "(twin critics with clipped double-Q, target policy smoothing, delayed actor) or sac "
-        "(squashed Gaussian actor, twin critics, entropy bonus with a learned temperature).",
+        description="Algorithm family (agents.families): ddpg (the paper's: one critic, "
+        "deterministic actor), td3 (twin critics with clipped double-Q, target policy "
+        "smoothing, delayed actor) or sac (squashed Gaussian actor, twin critics, entropy "
+        "bonus with a learned temperature).",
     )
     # --- variant axes -------------------------------------------------------------------------
     window: int = Field(
@@ -56,25 +51,6 @@ class AgentConfig(BaseModel):
         le=64,
         description="Window sampling: the last w observations are stacked as the input of the "
         "actor and the MLP critic; for the LSTM critic, its sequence length over (state, action).",
-    )
-    lstm_critic: bool = Field(
-        False,
-        description="Use the LSTM critic (LSTM after the concatenation of the state and action "
-        "streams, over the window); the actor then sees only the current observation.",
-    )
-    lstm_hidden: int = Field(
-        64,
-        ge=4,
-        le=1024,
-        description="LSTM units of the LSTM critic. 64 keeps an update near 1/3 of the MLP rate "
-        "on one CPU thread (128 units over 8 steps measured ~17 updates/s).",
-    )
-    lstm_state_units: int = Field(
-        128,
-        ge=4,
-        le=2048,
-        description="Units of the state stream before the concatenation with the action in the "
-        "LSTM critic; it sets the LSTM's input width and so most of its cost.",
     )
     n_step: int = Field(
         1,
@@ -142,36 +118,6 @@ class AgentConfig(BaseModel):
     throttle_bias_init: float = Field(
         1.0, description="Initial bias of the throttle output's pre-sigmoid (sigmoid(1) = 0.73)."
     )
-    # --- TD3 (Fujimoto et al. 2018) -----------------------------------------------------------
-    policy_noise: float = Field(
-        0.2,
-        ge=0.0,
-        description="TD3 only: std of the Gaussian target policy smoothing noise added to "
-        "mu'(s') in the target, in action units (steer spans 2, each pedal 1).",
-    )
-    noise_clip: float = Field(
-        0.5,
-        ge=0.0,
-        description="TD3 only: the smoothing noise is clipped to [-noise_clip, noise_clip] "
-        "before the noisy target action is clipped to the action box.",
-    )
-    policy_delay: int = Field(
-        2,
-        ge=1,
-        le=64,
-        description="TD3 only: the actor and the target networks are updated once every "
-        "policy_delay critic updates.",
-    )
-    # --- SAC (Haarnoja et al. 2018, automatic temperature) --------------------------------------
-    alpha_init: float = Field(
-        1.0, gt=0.0, description="SAC only: initial entropy temperature alpha (SB3's auto: 1)."
-    )
-    alpha_lr: float = Field(3e-4, gt=0.0, description="SAC only: Adam learning rate of log alpha.")
-    target_entropy: float | None = Field(
-        None,
-        description="SAC only: entropy that alpha steers the policy to; None is -action_dim "
-        "(-3 for steer, throttle, brake).",
-    )
     # --- exploration --------------------------------------------------------------------------
     exploration_steps: int = Field(
         100_000,
@@ -232,30 +178,38 @@ class AgentConfig(BaseModel):
         json_schema_extra=marks(beyond_paper=True),
     )
 
+
+class AgentConfig(*reversed([f.settings for f in ALGORITHMS.values()]), SharedSettings):
+    """Hyperparameters of one variant: the shared settings, then each registered family's own
+    (its ``settings`` model), as flat keys."""
+
     @model_validator(mode="after")
     def _consistent(self) -> AgentConfig:
         if any(h < 1 for h in self.hidden):
             raise ValueError("hidden units must be positive")
         if self.batch_size > self.buffer_size:
             raise ValueError("batch_size must not exceed buffer_size")
-        families = ALGORITHM_FAMILIES[self.algorithm]
-        if self.family not in families:
+        if self.algorithm not in ALGORITHMS:
+            raise ValueError(
+                f"unknown algorithm {self.algorithm!r}; known: {', '.join(ALGORITHMS)}"
+            )
+        own = ALGORITHMS[self.algorithm]
+        if self.family not in own.tourney_families:
             raise ValueError(
                 f"family {self.family} does not fit algorithm {self.algorithm}; allowed: "
-                f"{', '.join(families)}"
+                f"{', '.join(own.tourney_families)}"
             )
-        if self.algorithm != "ddpg" and self.lstm_critic:
-            # twin LSTM critics would need their own q_pair and double the slowest update
-            raise ValueError(f"lstm_critic is supported for algorithm ddpg only, not "
-                             f"{self.algorithm}; use window > 1 with the MLP critics")  # fmt: skip
         # a setting the algorithm would ignore is an error, not a silent no-op
-        for algorithm, fields in (("td3", TD3_FIELDS), ("sac", SAC_FIELDS)):
-            if self.algorithm == algorithm:
+        defaults = type(self).model_fields
+        for other in ALGORITHMS.values():
+            if other is own:
                 continue
-            changed = [k for k in fields if getattr(self, k) != type(self).model_fields[k].default]
+            changed = [k for k in other.settings.model_fields
+                       if k not in own.settings.model_fields
+                       and getattr(self, k) != defaults[k].default]  # fmt: skip
             if changed:
                 raise ValueError(
-                    f"{', '.join(changed)} apply to algorithm {algorithm} only, not "
+                    f"{', '.join(changed)} apply to algorithm {other.algorithm} only, not "
                     f"{self.algorithm}"
                 )
         return self
@@ -263,22 +217,18 @@ class AgentConfig(BaseModel):
     @property
     def beyond_paper(self) -> bool:
         """True for families the paper did not race (TD3, SAC): tables label them."""
-        return self.algorithm != "ddpg"
+        return ALGORITHMS[self.algorithm].beyond_paper
 
     @property
     def uses_action_noise(self) -> bool:
         """Whether the training loop adds the OU + brake exploration noise to ``explore``'s
         action (DDPG, TD3); SAC explores by sampling its own policy."""
-        return self.algorithm != "sac"
+        return ALGORITHMS[self.algorithm].uses_action_noise
 
     @property
     def twin_critics(self) -> bool:
         """Clipped double-Q: two critics, the target takes their minimum (TD3, SAC)."""
-        return self.algorithm != "ddpg"
-
-    def entropy_target(self, action_dim: int) -> float:
-        """SAC's target entropy: ``target_entropy``, or -action_dim when unset."""
-        return float(-action_dim if self.target_entropy is None else self.target_entropy)
+        return ALGORITHMS[self.algorithm].twin_critics
 
 
 VARIANTS: dict[str, AgentConfig] = {
@@ -325,7 +275,7 @@ def named_settings(name: str) -> frozenset[str]:
     """The settings the registered variant ``name`` fixes by its name.
 
     A preset's common overrides leave these alone: `fast`'s 200k buffer applied to both PER
-    variants made PER40k and PER1M one variant under two names (replication pilot, 2026-12-01).
+    variants would make PER40k and PER1M one variant under two names.
     """
     return frozenset(get_variant(name).model_fields_set & set(NAMED_SETTINGS))
 
@@ -350,10 +300,16 @@ def get_variant(name: str, overrides: dict[str, Any] | None = None) -> AgentConf
     if fixed:
         raise UserInputError(f"variant {name}: overrides may not change 'name', 'family' or "
                              f"'algorithm' (got {', '.join(fixed)})")  # fmt: skip
+    return parse_config({**base.model_dump(), **overrides}, f"variant {name} overrides")
+
+
+def parse_config(data: Any, source: str) -> AgentConfig:
+    """``data`` validated as an AgentConfig; one UserInputError ``SOURCE: KEY: PROBLEM; ...``
+    otherwise."""
     try:
-        return AgentConfig.model_validate({**base.model_dump(), **overrides})
+        return AgentConfig.model_validate(data)
     except ValidationError as err:
         problems = "; ".join(
             f"{'.'.join(str(p) for p in e['loc']) or 'value'}: {e['msg']}" for e in err.errors()
         )
-        raise UserInputError(f"variant {name} overrides: {problems}") from None
+        raise UserInputError(f"{source}: {problems}") from None

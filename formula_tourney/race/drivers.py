@@ -13,7 +13,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from formula_tourney.agents.replay import ObservationWindow
+from formula_tourney.agents.buffers import ObservationWindow
 
 
 class Driver(Protocol):

@@ -29,9 +29,11 @@ from typing import Any
 
 import numpy as np
 
-from formula_tourney.agents.ddpg import DDPGAgent, configure_torch, save_checkpoint
+from formula_tourney.agents.buffers import make_buffer
+from formula_tourney.agents.checkpoints import save_checkpoint
+from formula_tourney.agents.core import configure_torch
+from formula_tourney.agents.families import make_agent
 from formula_tourney.agents.noise import BrakeExplorationNoise
-from formula_tourney.agents.replay import make_buffer
 from formula_tourney.sim.reward import RewardRule
 from formula_tourney.training.collect import SingleCarCollector
 from formula_tourney.training.envs import RunEnvs
@@ -172,7 +174,7 @@ def calibrate(spec: RunSpec, seconds: float = 1.0, chunk_steps: int = 100,
     env = envs.make(track, test=False)
     obs_dim = int(np.prod(env.observation_space.shape))
     action_dim = int(np.prod(env.action_space.shape))
-    agent = DDPGAgent(cfg, obs_dim, action_dim, device="cpu", seed=spec.seed)
+    agent = make_agent(cfg, obs_dim, action_dim, device="cpu", seed=spec.seed)
     seqs = np.random.SeedSequence(spec.seed).spawn(3)
     buffer = make_buffer(
         min(cfg.buffer_size, 200_000), obs_dim, action_dim, prioritized=cfg.prioritized,

@@ -10,12 +10,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from formula_tourney.agents.ddpg import DDPGAgent, load_checkpoint
+from formula_tourney.agents.checkpoints import load_checkpoint
+from formula_tourney.agents.core import Agent
 from formula_tourney.errors import UserInputError
 from formula_tourney.training.spec import RunSpec
 
 
-def load_run_checkpoint(path: str | Path, device: str = "cpu") -> tuple[DDPGAgent, RunSpec, dict]:
+def load_run_checkpoint(path: str | Path, device: str = "cpu") -> tuple[Agent, RunSpec, dict]:
     """(agent, run spec, extra metadata) of a checkpoint written by ``training.loop.train``."""
     path = Path(path)
     agent, extra = load_checkpoint(path, device=device)

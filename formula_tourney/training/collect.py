@@ -3,7 +3,7 @@
 Both collectors take one action per car, step their env(s), store each car's transition in the
 car's lane of the buffer with the reward the reward model's :class:`sim.reward.RewardRule` makes
 of the env's (its crash penalty and scale), keep each car's observation window (edge-padded at
-its episode's start, exactly as ``agents.replay.ObservationWindow`` and the buffer build it),
+its episode's start, exactly as ``agents.buffers.ObservationWindow`` and the buffer build it),
 and hand back the car-episodes that ended. The training loop owns acting,
 exploration and learning (and closes the envs); a test drives scripted actions through the same
 ``step``.
@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from formula_tourney.agents.replay import ObservationWindow, ReplayBuffer
+from formula_tourney.agents.buffers import ObservationWindow, ReplayBuffer
 from formula_tourney.sim.reward import RewardRule
 
 

@@ -7,7 +7,7 @@ starts and ``max_steps``), episode after episode as that env ends and resets the
 it drives is one transition of a demonstration buffer with the agent's observation layout,
 scaled reward, n-step and window rules (the same ``ReplayBuffer`` class); a drive cut after its
 last lap closes its episode without a terminal flag. Batches then draw their
-``demos.batch_fraction`` of rows from it (``agents.replay.DemoMix``).
+``demos.batch_fraction`` of rows from it (``agents.buffers.DemoMix``).
 
 The demonstrator's own lap time on the key track is its best clean lap there in these laps
 (or, when the key track is not a train track, in ``laps`` laps driven there in the test env
@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from formula_tourney.agents.replay import ReplayBuffer
+from formula_tourney.agents.buffers import ReplayBuffer
 from formula_tourney.bots.follower import Follower, FollowerConfig, _car_state
 from formula_tourney.bots.line_offsets import reference_offsets
 from formula_tourney.sim.env import DEFAULT_START_BEFORE_LINE_M
@@ -179,7 +179,7 @@ def behaviour_clone(
     copies the actor. Returns the MSE over every demonstration before and after.
 
     The agent's parameters have their ``.grad`` bound to one flat gradient buffer
-    (``agents.ddpg``): gradients are zeroed in place (never set to None) and left at zero.
+    (``agents.core``): gradients are zeroed in place (never set to None) and left at zero.
     """
     actor = agent.actor
     params = list(actor.parameters())

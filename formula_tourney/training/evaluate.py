@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from formula_tourney.agents.ddpg import DDPGAgent
-from formula_tourney.agents.replay import ObservationWindow
+from formula_tourney.agents.buffers import ObservationWindow
+from formula_tourney.agents.core import Agent
 from formula_tourney.errors import UserInputError
 from formula_tourney.results.layout import TRACE_COLUMNS
 from formula_tourney.training.checkpoint import load_run_checkpoint
@@ -73,7 +73,7 @@ def _xy(info: dict[str, Any], track: Any) -> tuple[float, float]:
 
 
 def run_test_episode(
-    agent: DDPGAgent,
+    agent: Agent,
     env: Any,
     track_name: str,
     start_s_m: float,
@@ -169,7 +169,7 @@ def laps_rows(ep: DriveResult, episode: int) -> list[dict[str, Any]]:
 
 
 def other_grip_tests(
-    agent: DDPGAgent,
+    agent: Agent,
     envs: RunEnvs,
     track: str,
     env_cache: dict[Any, Any],
@@ -247,7 +247,7 @@ def evaluate_checkpoint(
     }  # fmt: skip
 
 
-def check_observation_size(env: Any, agent: DDPGAgent, checkpoint: str | os.PathLike) -> None:
+def check_observation_size(env: Any, agent: Agent, checkpoint: str | os.PathLike) -> None:
     """A checkpoint's actor must fit the env's observation (LAC on in one and off in the other
     would otherwise fail deep inside torch)."""
     obs_dim = int(np.prod(env.observation_space.shape))

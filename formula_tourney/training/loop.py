@@ -15,7 +15,7 @@ CPU-seconds the run had spent when its round ended (``cpu_s``, ``training.budget
 a schedule's ``budget_cpu_s`` or ``stop_at`` ends the run (``training.budget.StopRule``). With
 ``spec.demos`` the follower's laps (``training.demos``) fill a demonstration buffer before the
 first step, the actor may be warm-started on them by behaviour cloning, and every batch draws its
-share of rows from them (``agents.replay.DemoMix``).
+share of rows from them (``agents.buffers.DemoMix``).
 """
 
 from __future__ import annotations
@@ -30,10 +30,12 @@ import numpy as np
 import torch
 from torch.utils.tensorboard import SummaryWriter
 
-from formula_tourney.agents.ddpg import DDPGAgent, configure_torch, save_checkpoint
+from formula_tourney.agents.buffers import DemoMix, make_buffer
+from formula_tourney.agents.checkpoints import save_checkpoint
+from formula_tourney.agents.core import Agent, configure_torch
+from formula_tourney.agents.families import make_agent
 from formula_tourney.agents.mlp_update import BCLoss
 from formula_tourney.agents.noise import BrakeExplorationNoise, linear_epsilon
-from formula_tourney.agents.replay import DemoMix, make_buffer
 from formula_tourney.results.folder import JobFolder
 from formula_tourney.results.layout import BEST_CHECKPOINT, LAST_CHECKPOINT
 from formula_tourney.results.metrics import model_clean_lap_s
@@ -62,7 +64,7 @@ def _nan_to_none(x: float) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
 
 
-def _greedy_actions(agent: DDPGAgent, windows: np.ndarray) -> np.ndarray:
+def _greedy_actions(agent: Agent, windows: np.ndarray) -> np.ndarray:
     """mu(s) of every car in one actor forward ``(N, w, D) -> (N, 3)``: 6-12 us per car at 8-32
     cars against ~40 us for one ``agent.act`` per car (400-300 actor, one thread, measured)."""
     with torch.no_grad():
@@ -107,7 +109,7 @@ def train(
     act_space = first_env.action_space if single else first_env.single_action_space
     obs_dim = int(np.prod(obs_space.shape))
     action_dim = int(np.prod(act_space.shape))
-    agent = DDPGAgent(agent_cfg, obs_dim, action_dim, device=spec.device, seed=spec.seed)
+    agent = make_agent(agent_cfg, obs_dim, action_dim, device=spec.device, seed=spec.seed)
     buffer = make_buffer(
         agent_cfg.buffer_size, obs_dim, action_dim, prioritized=agent_cfg.prioritized,
         gamma=agent_cfg.gamma, n_step=agent_cfg.n_step, window=agent_cfg.window,
