@@ -13,12 +13,12 @@ from pathlib import Path
 import pytest
 
 from formula_tourney.errors import UserInputError
-from formula_tourney.tourney.best_params import write_best_params
 from formula_tourney.tourney.spec import load_spec
-from formula_tourney.tourney.tune import objective_threshold, run_tune
-from formula_tourney.tourney.tune_spec import Objective, check_tune, load_tune_spec
-from formula_tourney.tourney.tune_study import suggest
-from formula_tourney.tourney.tune_worker import CpuMilestone
+from formula_tourney.tourney.tune.best_params import write_best_params
+from formula_tourney.tourney.tune.run import objective_threshold, run_tune
+from formula_tourney.tourney.tune.spec import Objective, check_tune, load_tune_spec
+from formula_tourney.tourney.tune.study import suggest
+from formula_tourney.tourney.tune.worker import CpuMilestone
 
 TUNE = """\
 name = "tinytune"

@@ -17,7 +17,6 @@ from typing import Any
 from formula_tourney.errors import UserInputError
 from formula_tourney.results.layout import ESTIMATE_FILE
 from formula_tourney.safeio import atomic_write_json
-from formula_tourney.tourney.collect import collect_results
 from formula_tourney.tourney.executors import Event, default_workers, make_executor
 from formula_tourney.tourney.lock import RunLock
 from formula_tourney.tourney.plan import PlannedPart, Planner, possible_variants
@@ -25,6 +24,7 @@ from formula_tourney.tourney.race_part import race_job
 from formula_tourney.tourney.scheduler import RunProgress, Scheduler
 from formula_tourney.tourney.spec import error_at, load_spec
 from formula_tourney.tourney.store import Store
+from formula_tourney.tourney.summary import collect_results
 
 DEFAULT_RESULTS = Path("results")
 
@@ -87,7 +87,7 @@ def run_tournament(
     if estimate and (dry_run or not (root / ESTIMATE_FILE).is_file()):
         # torch and the env kernels: only when asked (and the import is what a worker pays,
         # which the estimate measures)
-        from formula_tourney.tourney.estimate_plan import estimate_plan
+        from formula_tourney.tourney.estimate.plan import estimate_plan
 
         cost = estimate_plan(planner, planned, slots, cluster_cpus, calibrate_s, report).to_json()
     if dry_run:

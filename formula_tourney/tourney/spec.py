@@ -214,7 +214,7 @@ class JobSettings(_Strict):
     @field_validator("env_overrides", mode="before")
     @classmethod
     def _not_run_owned(cls, value: Any) -> Any:
-        """An env key the run sets itself would silently fight the setup (issue 10, item 2)."""
+        """An env key the run sets itself would silently fight the setup."""
         if isinstance(value, Mapping):
             owned = [k for k in value if k in RUN_OWNED_KEYS]
             if owned:

@@ -25,8 +25,8 @@ from formula_tourney.tourney.executors import die_with_parent
 from formula_tourney.tourney.jobs import Job
 from formula_tourney.tourney.outcomes import job_metrics
 from formula_tourney.tourney.runner import run_job
-from formula_tourney.tourney.tune_spec import Objective, TuneSpec, trial_spec
-from formula_tourney.tourney.tune_study import (
+from formula_tourney.tourney.tune.spec import Objective, TuneSpec, trial_spec
+from formula_tourney.tourney.tune.study import (
     counted,
     make_pruner,
     make_sampler,
