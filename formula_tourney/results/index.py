@@ -83,11 +83,9 @@ def is_legacy(con: sqlite3.Connection, present: set[str]) -> bool:
 def _table(con: sqlite3.Connection, present: set[str], table: str) -> list[dict[str, Any]]:
     if table not in present:
         return []
-    con.row_factory = sqlite3.Row
-    try:
-        return [dict(r) for r in con.execute(f"SELECT * FROM {table}")]  # noqa: S608 (fixed)
-    finally:
-        con.row_factory = None
+    cursor = con.cursor()
+    cursor.row_factory = sqlite3.Row  # on this cursor only: the connection may be the store's
+    return [dict(r) for r in cursor.execute(f"SELECT * FROM {table}")]  # noqa: S608 (fixed)
 
 
 def _num(value: Any) -> Any:

@@ -37,7 +37,8 @@ class BaselineKind(JobKind):
 
     def make(self, planner: Planner, planned: PlannedPart, store: Store,
              variants: list[str]) -> list[Job]:
-        return list(planned.baselines)
+        """The part's drives; none in a race part, whose bots race instead."""
+        return [] if planned.part.kind == "race" else list(planned.baselines)
 
     def finished(self, job: Job) -> bool:
         return BaselineFolder(job.out_dir).holds(job.config_hash)
