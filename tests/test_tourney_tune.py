@@ -162,8 +162,8 @@ def test_rdb_storage_url_runs_with_heartbeats(tmp_path: Path) -> None:
 
 
 def test_two_workers_draw_different_parameters(tmp_path: Path) -> None:
-    """Bug 14: every worker's sampler started from [sampler] seed, so with two workers trials 0
-    and 1 had identical parameters. Each worker now has its own stream derived from the seed."""
+    """Workers that all sampled from [sampler] seed gave trials 0 and 1 identical parameters:
+    each worker has its own stream derived from the seed."""
     path = tmp_path / "tune.toml"
     path.write_text(TUNE.replace("seed = 3", "seed = 0"), encoding="utf-8")
     result = run_tune(path, "WIN1", trials=2, workers=2, results_dir=tmp_path / "res")
