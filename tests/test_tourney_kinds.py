@@ -179,3 +179,22 @@ def test_an_index_of_the_older_layout_reads_and_resumes(finished: tuple[Path, Pa
         assert json.loads(rows[job_id]["attrs"]) == json.loads(row["attrs"]), job_id
         assert json.loads(rows[job_id]["result"]) == json.loads(row["result"]), job_id
     assert Store(root).job("p1/MS2-MOT/seed-0")["train_seconds"] > 0
+
+
+def test_a_done_job_whose_files_are_gone_goes_by_its_kind(finished: tuple[Path, Path],
+                                                          tmp_path: Path) -> None:
+    """In the closed part p1 a training run (trust_index) and a baseline drive (rerun_if_open)
+    stay done without their files; the race series (reopen_part) races again."""
+    path, res = _copy(finished, tmp_path)
+    root = res / "tiny"
+    (root / "p1/WIN1-MOT/seed-0/summary.json").unlink()
+    shutil.rmtree(root / "p1/_baselines/follower-centre-oval")
+    (root / "final/_races/race-0.json").unlink()
+    result = run_tournament(path, workers=1, results_dir=res)
+    assert result["this_run"]["done"] == 1 and result["this_run"]["skipped"] == 3
+    rows = {r["job_id"]: r for r in _table(root / L.INDEX_FILE, "SELECT * FROM jobs")}
+    assert all(r["status"] == "done" for r in rows.values())
+    assert rows["final/_races"]["attempts"] == 2 and rows["p1/WIN1-MOT/seed-0"]["attempts"] == 1
+    assert (root / "final/_races/race-0.json").is_file()
+    assert not (root / "p1/_baselines/follower-centre-oval").exists()
+    assert not (root / "p1/WIN1-MOT/seed-0/summary.json").exists()

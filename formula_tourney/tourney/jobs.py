@@ -30,9 +30,11 @@ class Job:
     """Train: the RunSpec as JSON. Baseline: bot, reference, track, laps. Race: a race part's
     series (``tourney.race_part.race_job``: track, races, seed, points, settings, models, bots)."""
     config_hash: str = ""
-    """Train: ``RunSpec.digest()``, compared on resume to tell a changed tournament file."""
+    """Digest of the job's settings (a training run's ``RunSpec.digest()``), compared on resume
+    to tell a changed tournament file and to tell a finished folder of other settings."""
     meta: dict[str, Any] = field(default_factory=dict)
-    """Who the job is in its tournament (entrant, variant, family, seed, ...; index columns)."""
+    """Who the job is in its tournament (entrant, variant, family, seed, ...); its kind's
+    ``attrs`` of it go to the index."""
     position: int = 0
     """Index of the part in the tournament (earlier parts run first)."""
 

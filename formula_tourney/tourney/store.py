@@ -83,7 +83,11 @@ class Store:
         present = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
         if not is_legacy(db, present):
             return
-        rows = legacy_job_rows(db, present)
+        try:
+            rows = legacy_job_rows(db, present)
+        except ValueError as err:  # a JSON column that is not JSON
+            raise CorruptResultError(f"{self.index_path}: cannot read the older index's jobs "
+                                     f"({err}); {REBUILD_HINT}") from None
         db.execute("BEGIN IMMEDIATE")
         try:
             for table in ("jobs", "baselines", "races"):
