@@ -33,9 +33,11 @@ def measure(file: Path, workers: int, results: Path) -> dict[str, float]:
     wall = time.perf_counter() - started
     db = sqlite3.connect(Path(result["results"]) / "index.sqlite")
     job_wall, train_s, jobs = db.execute(
-        "SELECT SUM(wall_s), SUM(train_seconds), COUNT(*) FROM jobs WHERE status='done'"
+        "SELECT SUM(wall_s), SUM(json_extract(result, '$.train_seconds')), COUNT(*) FROM jobs "
+        "WHERE status='done' AND kind='train'"
     ).fetchone()
-    failed = db.execute("SELECT COUNT(*) FROM jobs WHERE status='failed'").fetchone()[0]
+    failed = db.execute("SELECT COUNT(*) FROM jobs WHERE status='failed' AND kind='train'"
+                        ).fetchone()[0]
     db.close()
     return {
         "workers": workers,

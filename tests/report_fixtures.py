@@ -1,10 +1,11 @@
 """A realistic tournament folder in the results layout, for the report's tests.
 
 Written through the one layout (``formula_tourney.results``): the index from
-``layout.INDEX_SCHEMA``, each job folder through ``JobFolder`` (config.json holding a run spec,
-episodes/tests/laps tables, traces/<track>.parquet, summary.json) and each baseline drive through
-``BaselineFolder``, so that the report is tested against the files the trainer and the store
-write, not against the store's code.
+``layout.INDEX_SCHEMA`` (one ``jobs`` table for training runs and baseline drives alike), each
+job folder through ``JobFolder`` (config.json holding a run spec, episodes/tests/laps tables,
+traces/<track>.parquet, summary.json) and each baseline drive through ``BaselineFolder``, so
+that the report is tested against the files the trainer and the store write, not against the
+store's code.
 
 Shape (mirrors the paper's studies at toy scale):
 - part1 (oval, MOT): win1, win4 (family win), ms3 (ms), per1m (per); 3 seeds. ms3 never laps
@@ -250,9 +251,7 @@ def build_tournament(results_dir: Path, name: str = "fixture-cup") -> Path:
 
     con = sqlite3.connect(root / L.INDEX_FILE)
     con.executescript(L.INDEX_SCHEMA)
-    cols = [c for c in jobs[0] if not c.startswith("_")]
-    con.executemany(f"INSERT INTO jobs ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})",
-                    [tuple(j[c] for c in cols) for j in jobs])
+    _insert_jobs(con, [_train_row(j) for j in jobs])
     parts = [
         ("part1", "study1", 0, "done", ["win1", "win4", "ms3", "per1m"], ["win4", "per1m"]),
         ("part2", "study1", 1, "done", ["win4-mot", "win4-rc", "per1m-mot", "per1m-rc"],
@@ -288,7 +287,7 @@ def build_tournament(results_dir: Path, name: str = "fixture-cup") -> Path:
             folder.write_trace(_bot_trace(b[2], b[4]))
             folder.write_result({"best_lap_s": b[4], "damage": b[5], "finished": bool(b[6])})
         rows.append((*b, status, reason, rel))
-    con.executemany("INSERT INTO baselines VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
+    _insert_jobs(con, [_baseline_row(*r) for r in rows])
     # The tournament's own choice of general models (tourney.api._select_general): for
     # per1m-rc it chose seed-1, although seed-0's train-track lap is faster, so a test can tell
     # that the report follows the store's choice.
@@ -297,6 +296,40 @@ def build_tournament(results_dir: Path, name: str = "fixture-cup") -> Path:
     con.commit()
     con.close()
     return root
+
+
+TRAIN_ATTRS = ("study", "entrant", "variant", "family", "seed", "reference", "lac",
+               "train_tracks")
+SHARED = ("job_id", "part", "status", "reason", "attempts", "path", "started_at", "finished_at",
+          "wall_s")
+
+
+def _train_row(job: dict[str, Any]) -> dict[str, Any]:
+    """A fixture job as a row of the index's one ``jobs`` table (kind ``train``)."""
+    attrs = {k: job[k] for k in TRAIN_ATTRS}
+    attrs.update(lac=bool(job["lac"]), train_tracks=json.loads(job["train_tracks"]))
+    return {**{k: job[k] for k in SHARED}, "kind": "train", "attrs": json.dumps(attrs),
+            "result": None}
+
+
+def _baseline_row(part: str, bot: str, track: str, reference: str, best_lap_s: float,
+                  damage: float, finished: int, limit_s: float, status: str, reason: str,
+                  path: str) -> dict[str, Any]:
+    """A baseline drive as a row of the index's ``jobs`` table (kind ``baseline``)."""
+    result = {"best_lap_s": None if math.isnan(best_lap_s) else best_lap_s,
+              "damage": None if math.isnan(damage) else damage, "finished": bool(finished),
+              "reference_limit_s": limit_s}
+    return {"job_id": path, "kind": "baseline", "part": part, "status": status,
+            "reason": reason, "attempts": 1, "path": path,
+            "attrs": json.dumps({"bot": bot, "track": track, "reference": reference}),
+            "result": json.dumps(result)}
+
+
+def _insert_jobs(con: sqlite3.Connection, rows: list[dict[str, Any]]) -> None:
+    for row in rows:
+        cols = list(row)
+        con.execute(f"INSERT INTO jobs ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})",
+                    tuple(row.values()))
 
 
 def build_empty_tournament(results_dir: Path, name: str = "empty-cup") -> Path:

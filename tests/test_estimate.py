@@ -7,7 +7,8 @@ import math
 
 import pytest
 
-from formula_tourney.tourney.estimate import (
+from formula_tourney.tourney.estimate.calibrate import Measured, Rates, WorkerStart, calibrate
+from formula_tourney.tourney.estimate.model import (
     Estimate,
     JobCost,
     PartCost,
@@ -17,7 +18,6 @@ from formula_tourney.tourney.estimate import (
     job_cost,
     simulate_wall,
 )
-from formula_tourney.tourney.estimate_calibrate import Measured, Rates, WorkerStart, calibrate
 from formula_tourney.training.spec import build_run_spec
 
 

@@ -181,10 +181,11 @@ def test_test_grips_are_declared_once_and_keep_the_old_digest(ring_tracks) -> No
 def _index(root, job_dir_rel: str) -> None:
     con = sqlite3.connect(root / L.INDEX_FILE)
     con.executescript(L.INDEX_SCHEMA)
-    con.execute(
-        "INSERT INTO jobs (job_id, study, part, entrant, variant, family, seed, reference, lac, "
-        "train_tracks, status, path) VALUES (?, 's', 'wet', 'win1', 'WIN1', 'win', 3, 'centre', "
-        "0, ?, 'done', ?)", (job_dir_rel, json.dumps(["ring"]), job_dir_rel))
+    attrs = {"study": "s", "entrant": "win1", "variant": "WIN1", "family": "win", "seed": 3,
+             "reference": "centre", "lac": False, "train_tracks": ["ring"]}
+    con.execute("INSERT INTO jobs (job_id, kind, part, status, path, attrs) "
+                "VALUES (?, 'train', 'wet', 'done', ?, ?)",
+                (job_dir_rel, job_dir_rel, json.dumps(attrs)))
     con.execute("INSERT INTO parts (part, study, position, status, entrants, promoted) VALUES "
                 "('wet', 's', 0, 'done', '[\"win1\"]', '[]')")
     con.commit()

@@ -56,7 +56,7 @@ def test_run_races_the_race_part_after_its_source_promotes(raced):
     _path, res, result = raced
     store = Store(res / "tiny")
     assert store.part("final")["status"] == "done"
-    row = store.race("final")
+    row = store.job("final/_races")
     assert row["status"] == "done" and row["attempts"] == 1 and row["races"] == 2
     assert sorted(row["entrants"]) == NAMES
     final = next(p for p in result["parts"] if p["part"] == "final")
@@ -90,7 +90,7 @@ def test_a_deleted_race_file_is_raced_again_to_the_same_standings(raced):
     assert again["this_run"]["done"] == 1 and again["this_run"]["skipped"] >= 2
     assert _texts(folder) == texts  # race 0 kept as it was, race 1 raced again identically
     assert standings(folder.races(), [10, 6, 4]) == before
-    assert Store(res / "tiny").race("final")["attempts"] == 2
+    assert Store(res / "tiny").job("final/_races")["attempts"] == 2
     # Nothing missing: a further run races nothing.
     assert run_tournament(path, workers=1, results_dir=res)["this_run"]["done"] == 0
 
@@ -98,10 +98,10 @@ def test_a_deleted_race_file_is_raced_again_to_the_same_standings(raced):
 def test_an_index_without_the_series_row_recovers_it_from_the_files(raced):
     path, res, _ = raced
     with sqlite3.connect(res / "tiny" / "index.sqlite") as db:  # an older run closed it at once
-        db.execute("DELETE FROM races")
+        db.execute("DELETE FROM jobs WHERE kind='race'")
     again = run_tournament(path, workers=1, results_dir=res)
     assert again["this_run"]["done"] == 0 and again["this_run"]["recovered"] == 1
-    assert Store(res / "tiny").race("final")["status"] == "done"
+    assert Store(res / "tiny").job("final/_races")["status"] == "done"
 
 
 def test_other_race_settings_on_resume_are_refused_before_anything_runs(raced, tmp_path):

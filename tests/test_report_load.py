@@ -14,7 +14,8 @@ from formula_tourney.errors import UserInputError
 from formula_tourney.report.load import DEFAULT_UNSEEN_FINISH_RATE, load_tournament
 from formula_tourney.results import layout as L
 from formula_tourney.results.folder import CorruptResultError
-from formula_tourney.results.index import read_index, read_meta
+from formula_tourney.results.index import JOB_COLUMNS, read_index, read_meta, rows_of_kind
+from formula_tourney.tourney.kinds import BASELINE
 
 
 @pytest.fixture()
@@ -26,8 +27,14 @@ def test_read_index_has_the_layouts_columns(root: Path, tmp_path: Path) -> None:
     problems: list[str] = []
     index = read_index(root, problems)
     assert problems == []
-    assert {k: list(v.columns) for k, v in index.items()} == L.INDEX_TABLES
-    assert len(index["jobs"]) == 34 and len(index["baselines"]) == 9
+    assert {k: list(v.columns) for k, v in index.items() if k != "jobs"} == {
+        k: v for k, v in L.INDEX_TABLES.items() if k != "jobs"}
+    jobs = index["jobs"]  # one table: the shared columns, then each kind's attrs and result
+    assert list(jobs.columns[:len(JOB_COLUMNS)]) == JOB_COLUMNS
+    assert jobs["kind"].value_counts().to_dict() == {"train": 34, "baseline": 9}
+    drives = rows_of_kind(jobs, BASELINE.name, BASELINE.columns)
+    assert list(drives.columns) == BASELINE.columns and len(drives) == 9
+    assert drives.loc[drives["track"] == "flowing", "best_lap_s"].max() == 77.39
     assert index["general_models"]["job_id"].tolist() == ["part3/per1m-rc/seed-1"]
     # a table a foreign index lacks reads as empty, and says so; general_models is optional
     with sqlite3.connect(root / L.INDEX_FILE) as con:

@@ -194,12 +194,11 @@ def test_unreadable_files_become_problems(tmp_path: Path) -> None:
     (root / "part1" / "win4" / "seed-0" / "tests.parquet").write_bytes(b"not parquet")
     (root / "part1" / "per1m" / "seed-2" / "tests.parquet").unlink()
     with sqlite3.connect(root / "index.sqlite") as con:
-        con.execute("DROP TABLE baselines")
+        con.execute("DELETE FROM jobs WHERE kind='baseline'")  # no bot drove
     data = load_tournament(root, part="part1")
     problems = "\n".join(data.problems)
     bad = root / "part1" / "win4" / "seed-0" / "tests.parquet"
     assert f"part1/win4/seed-0: {bad}: cannot read the job's tests table" in problems
-    assert "table 'baselines' missing" in problems
     assert "part1/per1m/seed-2: marked done but" in problems and "(missing)" in problems
     t1 = build_tables(Context.build(data))[0]
     win4 = _record(t1, "part1: oval MOT", "win4")

@@ -12,12 +12,12 @@ from pathlib import Path
 import pytest
 
 from formula_tourney.errors import UserInputError
-from formula_tourney.tourney.best_params import write_best_params
 from formula_tourney.tourney.spec import load_spec
-from formula_tourney.tourney.tune import objective_threshold, run_tune
-from formula_tourney.tourney.tune_spec import Objective, check_tune, load_tune_spec
-from formula_tourney.tourney.tune_study import suggest
-from formula_tourney.tourney.tune_worker import CpuMilestone
+from formula_tourney.tourney.tune.best_params import write_best_params
+from formula_tourney.tourney.tune.run import objective_threshold, run_tune
+from formula_tourney.tourney.tune.spec import Objective, check_tune, load_tune_spec
+from formula_tourney.tourney.tune.study import suggest
+from formula_tourney.tourney.tune.worker import CpuMilestone
 
 TUNE = """\
 name = "tinytune"
@@ -161,8 +161,8 @@ def test_rdb_storage_url_runs_with_heartbeats(tmp_path: Path) -> None:
 
 
 def test_two_workers_draw_different_parameters(tmp_path: Path) -> None:
-    """Bug 14: every worker's sampler started from [sampler] seed, so with two workers trials 0
-    and 1 had identical parameters. Each worker now has its own stream derived from the seed."""
+    """Workers that all sampled from [sampler] seed gave trials 0 and 1 identical parameters:
+    each worker has its own stream derived from the seed."""
     path = tmp_path / "tune.toml"
     path.write_text(TUNE.replace("seed = 3", "seed = 0"), encoding="utf-8")
     result = run_tune(path, "WIN1", trials=2, workers=2, results_dir=tmp_path / "res")

@@ -130,7 +130,7 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
     ) -> None:
         """Pre-select a variant's hyperparameters with Optuna (TPE, pruning on test laps)."""
-        from formula_tourney.tourney.tune import run_tune  # imports optuna: only when tuning
+        from formula_tourney.tourney.tune.run import run_tune  # imports optuna: only when tuning
 
         try:
             result = run_tune(

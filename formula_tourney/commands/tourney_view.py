@@ -95,13 +95,12 @@ def render_results(console: Console, result: dict[str, Any]) -> None:
                 _gap(row["bLT"], limit),
                 f"{row['finished_seeds']}/{row['seeds']}", row.get("decision") or "",
             )
-        for base in result["baselines"]:
-            if base["part"] == part["part"]:
-                table.add_row(f"{base['bot']} ({base['reference']}) @{base['track']}", "bot",
-                              "", _fmt(base["best_lap_s"]),
-                              _gap(base["best_lap_s"], base["reference_limit_s"]),
-                              "yes" if base["finished"] else base["status"],
-                              f"limit {_fmt(base['reference_limit_s'])}")
+        for base in part.get("baselines", []):
+            table.add_row(f"{base['bot']} ({base['reference']}) @{base['track']}", "bot", "",
+                          _fmt(base["best_lap_s"]),
+                          _gap(base["best_lap_s"], base["reference_limit_s"]),
+                          "yes" if base["finished"] else base["status"],
+                          f"limit {_fmt(base['reference_limit_s'])}")
         console.print(table)
     for fail in result["failures"]:
         console.print(f"[red]failed[/red] {escape(fail['job_id'])}: {escape(str(fail['reason']))}")

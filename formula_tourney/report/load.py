@@ -26,7 +26,8 @@ from formula_tourney.results.folder import (
     JobFolder,
     OldSchemaError,
 )
-from formula_tourney.results.index import read_index, read_meta
+from formula_tourney.results.index import read_index, read_meta, rows_of_kind
+from formula_tourney.tourney.kinds import BASELINE, TRAIN
 from formula_tourney.tourney.spec import Selection
 
 JOB_TABLE_NAMES = ("tests", "episodes", "laps")
@@ -229,8 +230,9 @@ def load_tournament(root: str | Path, part: str | None = None) -> TournamentData
     problems: list[str] = []
     index = read_index(root, problems)
     rates = _finish_rates(read_meta(root))
-    jobs, parts = index["jobs"].copy(), index["parts"].copy()
-    baselines, general = index["baselines"].copy(), index["general_models"].copy()
+    jobs = rows_of_kind(index["jobs"], TRAIN.name, TRAIN.columns)
+    baselines = rows_of_kind(index["jobs"], BASELINE.name, BASELINE.columns)
+    parts, general = index["parts"].copy(), index["general_models"].copy()
     general["chosen"] = general["chosen"].map(_bool).astype(bool)
     general["episode"] = pd.to_numeric(general["episode"], errors="coerce")
     general["train_lap_s"] = pd.to_numeric(general["train_lap_s"], errors="coerce")

@@ -1,6 +1,6 @@
 """Race parts in the report: each finished series' standings as a report table, and its figures.
 
-Reads ``<part>/_races/`` of every series the index's ``races`` table knows (files only, through
+Reads ``<part>/_races/`` of every race series the index knows (files only, through
 ``results.folder.RaceFolder``) and scores it with ``report.race_standings.standings``, the one
 definition of the table, so the report, ``formula-tourney races`` and ``race --races`` print
 the same numbers for the same files. A series that is not complete (running, failed, a race
@@ -18,7 +18,8 @@ from formula_tourney.report.race_figures import plot_race
 from formula_tourney.report.race_standings import STANDINGS_COLUMNS, standings, standings_rows
 from formula_tourney.report.table_model import DASH, ReportTable
 from formula_tourney.results.folder import RaceFolder
-from formula_tourney.results.index import read_index
+from formula_tourney.results.index import read_index, rows_of_kind
+from formula_tourney.tourney.kinds import RACE
 
 STANDINGS_GROUP = "standings"
 AHEAD_GROUP = "P(row finishes ahead of column)"
@@ -39,7 +40,7 @@ def load_race_parts(root: str | Path, part: str | None, problems: list[str]) -> 
     part order; incomplete ones go to ``problems``."""
     root = Path(root)
     index = read_index(root)
-    rows = index["races"]
+    rows = rows_of_kind(index["jobs"], RACE.name, RACE.columns)
     if rows.empty:
         return []
     order = {str(p): i for i, p in zip(index["parts"]["position"], index["parts"]["part"],

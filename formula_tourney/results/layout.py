@@ -95,58 +95,67 @@ TRACE_COLUMNS = [
 
 INDEX_TABLES: dict[str, list[str]] = {
     "jobs": [
-        "job_id", "study", "part", "entrant", "variant", "family", "seed", "reference", "lac",
-        "train_tracks", "status", "reason", "attempts", "path", "started_at", "finished_at",
-        "wall_s", "position", "config_hash", "worker_pid", "best_lap_s", "finished", "damage",
-        "train_seconds", "test_distance_m",
+        "job_id", "kind", "part", "position", "status", "reason", "attempts", "path",
+        "started_at", "finished_at", "wall_s", "config_hash", "worker_pid", "attrs", "result",
     ],
     "parts": [
         "part", "study", "position", "status", "entrants", "promoted", "reason", "ranking",
         "source",
     ],
-    "baselines": [
-        "part", "bot", "track", "reference", "best_lap_s", "damage", "finished",
-        "reference_limit_s", "status", "reason", "path",
-    ],
     "general_models": [
         "part", "job_id", "entrant", "seed", "episode", "checkpoint", "train_track",
         "train_lap_s", "laps", "chosen",
+    ],
+}  # fmt: skip
+"""Columns of each index table. ``jobs`` holds every job of every kind (a training run, a
+baseline drive, a race series, ...), one row per job id, like Optuna's trials table: the
+columns every kind shares, ``kind`` naming its ``tourney.kinds`` object, and two JSON objects
+whose keys that object declares: ``attrs`` (who the job is: entrant, seed, bot, track, ...) and
+``result`` (what it recorded when it finished: best lap, damage, ...). Readers see ``attrs`` and
+``result`` spread into columns (``results.index.read_index``)."""
+
+JOB_JSON_COLUMNS = ("attrs", "result")
+"""The ``jobs`` columns that hold a JSON object of kind-specific keys."""
+
+INDEX_SCHEMA = """
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS jobs (
+    job_id TEXT PRIMARY KEY, kind TEXT NOT NULL, part TEXT, position INTEGER,
+    status TEXT NOT NULL DEFAULT 'pending', reason TEXT, attempts INTEGER NOT NULL DEFAULT 0,
+    path TEXT, started_at TEXT, finished_at TEXT, wall_s REAL, config_hash TEXT,
+    worker_pid INTEGER, attrs TEXT NOT NULL DEFAULT '{}', result TEXT
+);
+CREATE INDEX IF NOT EXISTS jobs_by_part ON jobs (part, kind);
+CREATE TABLE IF NOT EXISTS parts (
+    part TEXT PRIMARY KEY, study TEXT, position INTEGER, status TEXT NOT NULL DEFAULT 'pending',
+    entrants TEXT, promoted TEXT, reason TEXT, ranking TEXT, source TEXT
+);
+CREATE TABLE IF NOT EXISTS general_models (
+    part TEXT, job_id TEXT PRIMARY KEY, entrant TEXT, seed INTEGER, episode INTEGER,
+    checkpoint TEXT, train_track TEXT, train_lap_s REAL, laps TEXT, chosen INTEGER
+);
+"""
+
+LEGACY_JOB_TABLES: dict[str, list[str]] = {
+    "jobs": [
+        "job_id", "study", "part", "entrant", "variant", "family", "seed", "reference", "lac",
+        "train_tracks", "status", "reason", "attempts", "path", "started_at", "finished_at",
+        "wall_s", "position", "config_hash", "worker_pid", "best_lap_s", "finished", "damage",
+        "train_seconds", "test_distance_m",
+    ],
+    "baselines": [
+        "part", "bot", "track", "reference", "best_lap_s", "damage", "finished",
+        "reference_limit_s", "status", "reason", "path",
     ],
     "races": [
         "part", "track", "races", "entrants", "status", "reason", "attempts", "path",
         "started_at", "finished_at", "wall_s", "config_hash",
     ],
 }  # fmt: skip
-
-INDEX_SCHEMA = """
-CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS jobs (
-    job_id TEXT PRIMARY KEY, study TEXT, part TEXT, entrant TEXT, variant TEXT, family TEXT,
-    seed INTEGER, reference TEXT, lac INTEGER, train_tracks TEXT,
-    status TEXT NOT NULL DEFAULT 'pending', reason TEXT, attempts INTEGER NOT NULL DEFAULT 0,
-    path TEXT, started_at TEXT, finished_at TEXT, wall_s REAL,
-    position INTEGER, config_hash TEXT, worker_pid INTEGER,
-    best_lap_s REAL, finished INTEGER, damage REAL, train_seconds REAL, test_distance_m REAL
-);
-CREATE TABLE IF NOT EXISTS parts (
-    part TEXT PRIMARY KEY, study TEXT, position INTEGER, status TEXT NOT NULL DEFAULT 'pending',
-    entrants TEXT, promoted TEXT, reason TEXT, ranking TEXT, source TEXT
-);
-CREATE TABLE IF NOT EXISTS baselines (
-    part TEXT, bot TEXT, track TEXT, reference TEXT, best_lap_s REAL, damage REAL,
-    finished INTEGER, reference_limit_s REAL, status TEXT NOT NULL DEFAULT 'pending', reason TEXT,
-    path TEXT, PRIMARY KEY (part, bot, track, reference)
-);
-CREATE TABLE IF NOT EXISTS general_models (
-    part TEXT, job_id TEXT PRIMARY KEY, entrant TEXT, seed INTEGER, episode INTEGER,
-    checkpoint TEXT, train_track TEXT, train_lap_s REAL, laps TEXT, chosen INTEGER
-);
-CREATE TABLE IF NOT EXISTS races (
-    part TEXT PRIMARY KEY, track TEXT, races INTEGER, entrants TEXT,
-    status TEXT NOT NULL DEFAULT 'pending', reason TEXT, attempts INTEGER NOT NULL DEFAULT 0,
-    path TEXT, started_at TEXT, finished_at TEXT, wall_s REAL, config_hash TEXT
-);
-"""
+"""The index before the one ``jobs`` table: a table per job kind (training jobs in ``jobs``
+without a ``kind`` column, ``baselines`` keyed by part, bot, track and reference, ``races`` by
+part). ``results.index`` reads such an index as if it were the current one, and
+``tourney.store.Store`` migrates it in place when a run resumes it."""
 
 JOB_STATUSES = ("pending", "running", "done", "failed")
 

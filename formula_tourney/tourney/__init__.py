@@ -2,11 +2,15 @@
 
 Modules, in the order data flows through them (imports go the same way):
 
-- ``spec``: the tournament file's schema and line-accurate errors; ``tune_spec``: the tune file's.
-- ``plan``: parts -> entrants x setups x seeds -> jobs, each with its ``training.spec.RunSpec``.
-- ``jobs``: the picklable ``Job``; ``runner``: one job in a worker; ``executors``: where jobs run.
+- ``spec``: the tournament file's schema and line-accurate errors.
+- ``plan``: parts -> entrants x setups x seeds -> jobs, each with its ``training.spec.RunSpec``;
+  ``jobs``: the picklable ``Job``.
 - ``store``: the index (``index.sqlite``); ``outcomes``: a finished folder's metrics;
-  ``promote``: who goes on; ``scheduler``: the parent's loop; ``collect``: results as data.
-- ``api``: ``run_tournament``; ``tune`` (with ``tune_study``, ``tune_worker``): Optuna studies;
-  ``best_params``: ``--write-best``; ``lock``: one run per results folder.
+  ``race_part``/``race_worker``: a race series, parent and worker side.
+- ``kinds/``: one object per job kind (training run, baseline drive, race series) that makes,
+  runs and records its jobs; ``runner``: one job in a worker; ``executors``: where jobs run.
+- ``promote``: who goes on; ``scheduler``: the parent's loop; ``summary``: the tournament's
+  state as plain data.
+- ``api``: ``run_tournament``; ``tune/``: Optuna studies (and ``--write-best``);
+  ``estimate/``: the cost before a run; ``lock``: one run per results folder.
 """

@@ -17,14 +17,14 @@ from typing import Any
 from formula_tourney.errors import UserInputError
 from formula_tourney.results.layout import ESTIMATE_FILE
 from formula_tourney.safeio import atomic_write_json
-from formula_tourney.tourney.collect import collect_results
 from formula_tourney.tourney.executors import Event, default_workers, make_executor
+from formula_tourney.tourney.kinds import KINDS
 from formula_tourney.tourney.lock import RunLock
-from formula_tourney.tourney.plan import PlannedPart, Planner, possible_variants
-from formula_tourney.tourney.race_part import race_job
+from formula_tourney.tourney.plan import PlannedPart, Planner
 from formula_tourney.tourney.scheduler import RunProgress, Scheduler
 from formula_tourney.tourney.spec import error_at, load_spec
 from formula_tourney.tourney.store import Store
+from formula_tourney.tourney.summary import collect_results
 
 DEFAULT_RESULTS = Path("results")
 
@@ -87,7 +87,7 @@ def run_tournament(
     if estimate and (dry_run or not (root / ESTIMATE_FILE).is_file()):
         # torch and the env kernels: only when asked (and the import is what a worker pays,
         # which the estimate measures)
-        from formula_tourney.tourney.estimate_plan import estimate_plan
+        from formula_tourney.tourney.estimate.plan import estimate_plan
 
         cost = estimate_plan(planner, planned, slots, cluster_cpus, calibrate_s, report).to_json()
     if dry_run:
@@ -126,39 +126,20 @@ def run_tournament(
 
 def _check_unchanged(store: Store, planner: Planner, planned: list[PlannedPart],
                      retry_failed: bool = False) -> None:
-    """Refuse to resume when a job that already ran would now get a different run spec
-    (promoted parts: the jobs of the variants the index holds for them), or a race part that
-    raced would race other entrants or settings (``retry_failed`` may re-promote: a new
+    """Refuse to resume when a job that already ran would now get other settings: each kind
+    names the jobs it guards (``JobKind.resume_jobs``: a training run of a variant the index
+    holds, a race series of the promotion it holds; ``retry_failed`` may re-promote, so a new
     series is then expected)."""
     for item in planned:
-        if item.part.kind == "race":
-            if not retry_failed:
-                _check_race_unchanged(store, planner, item)
-            continue
-        jobs = item.jobs
-        if item.variants is None:
-            held = {r["variant"] for r in store.job_rows(item.part.name)}
-            possible = possible_variants(planner.spec, item.part)
-            jobs = planner.jobs(item.position, [v for v in possible if v in held])
-        for job in jobs:
-            row = store.job(job.job_id)
-            if row and row["config_hash"] and row["config_hash"] != job.config_hash and (
-                row["status"] in ("done", "running", "failed")
-            ):
-                raise error_at(planner.path, planner.text, ("parts", item.position),
-                               f"{job.job_id} already ran in {store.root} with other settings; "
-                               "use a new tournament name or --results DIR to start afresh")
-
-
-def _check_race_unchanged(store: Store, planner: Planner, item: PlannedPart) -> None:
-    row = store.race(item.part.name)
-    source = store.part(str(item.part.promoted_from)) or {}
-    variants = (source.get("promoted") or {}).get(item.part.name)
-    if row is None or variants is None or row["status"] != "done":
-        return
-    job = race_job(planner, item.position, store, list(variants))
-    if row["config_hash"] != job.config_hash:
-        raise error_at(planner.path, planner.text, ("parts", item.position),
-                       f"{job.job_id} already raced in {store.root} with other entrants or "
-                       "race settings; use a new tournament name or --results DIR to start "
-                       "afresh")
+        for kind in KINDS.values():
+            if kind.changed_settings is None:
+                continue
+            for job in kind.resume_jobs(planner, item, store, retry_failed):
+                row = store.job(job.job_id)
+                if row and row["config_hash"] and row["config_hash"] != job.config_hash and (
+                    row["status"] in ("done", "running", "failed")
+                ):
+                    raise error_at(planner.path, planner.text, ("parts", item.position),
+                                   f"{job.job_id} "
+                                   f"{kind.changed_settings.format(root=store.root)}; use a new "
+                                   "tournament name or --results DIR to start afresh")

@@ -4,7 +4,7 @@ The scheduler (``tourney.scheduler``) submits one job per free slot and polls fo
 (started, progress, done, failed). Both executors run ``tourney.runner.run_job``.
 
 Local pool: long-lived workers (spawned, one torch thread each: two threads in one process
-scaled poorly here, DESIGN.md) each own one duplex ``multiprocessing`` pipe, rather than sharing
+scaled poorly here) each own one duplex ``multiprocessing`` pipe, rather than sharing
 one ``multiprocessing.Queue``: a worker killed by -9 in the middle of a ``put`` would keep the
 shared queue's write lock forever and stall every other worker. The parent waits on the pipes and
 on the process sentinels together, so a dead worker is seen at once; the job it held is reported

@@ -2,7 +2,7 @@
 
 The paper selects by average best lap time (aLT: mean over seeds of each seed's best clean lap),
 keeps the best of each algorithm family, and on the technical track the best overall. Lap time,
-never return: the paper's reward ranks laps poorly (DESIGN.md, "Learning on the oval"). A seed
+never return: the paper's reward ranks laps poorly (docs/agents.md, the reward sections). A seed
 that failed or never completed a clean lap counts against the finish rate, not in the mean.
 """
 

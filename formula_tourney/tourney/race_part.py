@@ -9,8 +9,9 @@ which), and the part's bots start too. The job runs the whole series in one work
 (``tourney.race_worker``): a series of a few cars is minutes, not hours, so one job per part
 keeps one owner of the qualifying grid, and resuming is per race file (a finished race is kept,
 a missing one is raced again exactly as the first run would have). Files go to
-``<part>/_races/`` (``results.folder.RaceFolder``); the index's ``races`` table holds only the
-series' status; the standings are the report's (``report.race_standings``).
+``<part>/_races/`` (``results.folder.RaceFolder``); the index's row of the series (kind
+``race``, ``tourney.kinds.race``) holds only its status; the standings are the report's
+(``report.race_standings``).
 """
 
 from __future__ import annotations
@@ -26,18 +27,18 @@ from formula_tourney.results.folder import RaceFolder
 from formula_tourney.tourney.jobs import Job
 from formula_tourney.tourney.plan import Planner
 from formula_tourney.tourney.spec import Part, entrant_name
-from formula_tourney.tourney.store import Store
 
 
 def _finite(x: Any) -> bool:
     return x is not None and isinstance(x, float | int) and math.isfinite(float(x))
 
 
-def best_models(store: Store, source: Part, variants: list[str]) -> list[dict[str, Any]]:
+def best_models(trained: list[dict[str, Any]], root: Path, source: Part,
+                variants: list[str]) -> list[dict[str, Any]]:
     """The racing model of each promoted entrant of ``source``: its best seed's checkpoint
-    (relative to the tournament folder). Entrants without a finished seed or checkpoint are
-    left out."""
-    rows = [r for r in store.job_rows(source.name) if r["status"] == "done"]
+    (relative to the tournament folder ``root``), from the index rows of ``source``'s training
+    jobs (``trained``). Entrants without a finished seed or checkpoint are left out."""
+    rows = [r for r in trained if r["status"] == "done"]
     out = []
     for variant in variants:
         for setup in source.setups:
@@ -53,7 +54,7 @@ def best_models(store: Store, source: Part, variants: list[str]) -> list[dict[st
                                                 -r["seed"]))
             rel = Path(best.get("path") or best["job_id"]) / L.CHECKPOINTS_DIR
             kind = next((c for c in (L.BEST_CHECKPOINT, L.LAST_CHECKPOINT)
-                         if (store.root / rel / c).is_file()), None)
+                         if (root / rel / c).is_file()), None)
             if kind is None:
                 continue
             out.append({"name": entrant, "job_id": best["job_id"], "seed": best["seed"],
@@ -63,16 +64,18 @@ def best_models(store: Store, source: Part, variants: list[str]) -> list[dict[st
     return out
 
 
-def race_job(planner: Planner, index: int, store: Store, variants: list[str]) -> Job:
+def race_job(planner: Planner, index: int, trained: list[dict[str, Any]],
+             variants: list[str]) -> Job:
     """The one job of race part ``index``: its whole series, with the models of ``variants``
-    (the source part's promotion) and the part's bots. ``spec`` holds no absolute path but the
+    (the source part's promotion; ``trained``: the index rows of its training jobs) and the
+    part's bots. ``spec`` holds no absolute path but the
     track's, so its digest (the job's config hash) names the series wherever the results
     folder lives; the worker finds checkpoints through ``meta["root"]``."""
     part = planner.spec.parts[index]
     settings = part.race
     assert settings is not None  # kind race always has them (tourney.spec)
     source = next(p for p in planner.spec.parts if p.name == part.promoted_from)
-    models = best_models(store, source, variants)
+    models = best_models(trained, planner.root, source, variants)
     seen: dict[str, int] = {}
     bots = []
     for bot in settings.bots:

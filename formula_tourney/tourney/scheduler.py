@@ -5,10 +5,12 @@ the index (reconciled with the job folders first), closes a part when its last j
 promotes into the parts that wait on it, and goes on until no work is left. ``retry_failed``
 re-opens the parts that hold failed jobs (a closed part is otherwise frozen, since its
 promotion was decided on those results) and the parts downstream of them, whose promotion is
-then computed again. A race part (kind ``race``) has one job, its series
-(``tourney.race_part``), made when its source part promotes; its row in the ``races`` table
-is its status, and a closed race part whose race files are incomplete (one deleted) opens
-again. Progress reaches whoever shows it through :class:`RunProgress`.
+then computed again. The scheduler knows no job kind by name: each kind's object
+(``tourney.kinds``) makes a part's jobs of that kind, says whether a job's folder already holds
+its finished result, reads that result into the index, and says what a resumed run does with a
+done job whose files are gone (``JobKind.lost_files``). A training run, a baseline drive and a
+race series (a race part's one job, made once its source part promotes) go through the same
+loop. Progress reaches whoever shows it through :class:`RunProgress`.
 """
 
 from __future__ import annotations
@@ -17,14 +19,17 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from formula_tourney.results.folder import BaselineFolder, CorruptResultError
+from formula_tourney.results.folder import CorruptResultError
 from formula_tourney.tourney.executors import Event, Executor
 from formula_tourney.tourney.jobs import Job
-from formula_tourney.tourney.outcomes import baseline_result, general_pick, job_metrics
+from formula_tourney.tourney.kinds import KINDS, TRAIN, CannotRun, JobKind, kind_of
+from formula_tourney.tourney.outcomes import general_pick
 from formula_tourney.tourney.plan import PlannedPart, Planner
 from formula_tourney.tourney.promote import promote, rank_entrants
-from formula_tourney.tourney.race_part import race_job, series_complete
-from formula_tourney.tourney.store import Store, now_iso
+from formula_tourney.tourney.store import Store
+
+QUEUE_ORDER = {name: i for i, name in enumerate(KINDS)}
+"""Within a part, jobs queue in the registry's order of their kinds (training runs first)."""
 
 
 class RunProgress(Protocol):
@@ -45,9 +50,7 @@ class _PartState:
     variants: list[str] | None
     status: str = "pending"
     jobs: dict[str, Job] = field(default_factory=dict)
-    baselines: dict[str, Job] = field(default_factory=dict)
-    race: Job | None = None
-    """A race part's series, once its entrants are known."""
+    """The part's jobs of every kind, once its entrants are known."""
 
 
 class Scheduler:
@@ -95,9 +98,7 @@ class Scheduler:
     def _reopen_failed(self) -> set[str]:
         """Mark the parts holding failed jobs, and those downstream, pending again; returns
         the downstream parts, which wait for a new promotion."""
-        failed_parts = {r["part"] for r in self.store.job_rows() if r["status"] == "failed"}
-        failed_parts |= {r["part"] for r in self.store.baseline_rows() if r["status"] == "failed"}
-        failed_parts |= {r["part"] for r in self.store.race_rows() if r["status"] == "failed"}
+        failed_parts = {r["part"] for r in self.store.rows() if r["status"] == "failed"}
         failed_parts &= set(self.order)
         downstream = self._downstream(failed_parts)
         for name in self.order:
@@ -114,8 +115,7 @@ class Scheduler:
         store = self.store
         store.set_meta("tournament", self.spec.name)
         store.set_meta("spec", self.spec.model_dump_json())
-        fixed = store.reconcile(job_metrics)
-        self.counts["recovered"] = fixed["recovered_done"]
+        store.reconcile()
         for name in self.order:
             state = self.parts[name]
             part = state.planned.part
@@ -129,8 +129,6 @@ class Scheduler:
                 state.status = "pending"
             if state.status == "done" and self._dependents_unpromoted(name):
                 state.status = "pending"  # died between closing the part and promoting: redo
-            if state.status == "done" and part.kind == "race" and store.race(name) is None:
-                state.status = "pending"  # closed at once by an older run: race it now
             if state.variants is None and name not in waiting:
                 state.variants = self._stored_promotion(name)
             if state.variants is not None:
@@ -152,28 +150,34 @@ class Scheduler:
         return list(promoted[name]) if name in promoted else None
 
     def _materialise(self, state: _PartState) -> None:
-        """Create the jobs of a part whose variants are known; queue what is not finished."""
+        """Create the jobs of a part whose variants are known, of every kind; record in the
+        index what their folders already hold; queue what is not finished."""
         part = state.planned.part
-        if part.kind == "race":
-            self._materialise_race(state)
-            return
-        jobs = self.planner.jobs(state.planned.position, state.variants or [])
-        state.jobs = {j.job_id: j for j in jobs}
-        state.baselines = {j.job_id: j for j in state.planned.baselines}
+        made: list[tuple[JobKind, list[Job]]] = []
+        for kind in KINDS.values():
+            try:
+                made.append((kind, kind.make(self.planner, state.planned, self.store,
+                                             state.variants or [])))
+            except CannotRun as err:
+                self._fail_part(part.name, str(err))
+                return
         store = self.store
-        store.drop_jobs_except(part.name, state.jobs)
-        store.add_jobs([{**j.meta, "job_id": j.job_id, "position": j.position,
-                         "config_hash": j.config_hash} for j in jobs])  # fmt: skip
-        store.add_baselines(j.meta for j in state.baselines.values())
-        entrants = list(dict.fromkeys(j.meta["entrant"] for j in jobs))
-        store.set_part(part.name, entrants=entrants)
-        statuses = {j.job_id: (store.job(j.job_id) or {}).get("status") for j in jobs}
-        for job_id, status in statuses.items():
-            # A folder finished before the index knew of it (a rebuilt index, a promotion
-            # made again): record it instead of sending it to a worker.
-            if status == "pending" and store.recover(job_id, job_metrics):
-                statuses[job_id] = "done"
-                self.counts["recovered"] += 1
+        known = {r["job_id"] for r in store.rows(part=part.name)}
+        for kind, jobs in made:
+            store.drop_jobs_except(part.name, kind.name, [j.job_id for j in jobs])
+        jobs = [j for _kind, kind_jobs in made for j in kind_jobs]
+        state.jobs = {j.job_id: j for j in jobs}
+        store.add_jobs(kind_of(j.kind).index_row(j) for j in jobs)
+        store.set_part(part.name, entrants=list(dict.fromkeys(
+            e for j in jobs for e in kind_of(j.kind).entrants(j))))
+        statuses = {}
+        reopen = False
+        for job in jobs:
+            statuses[job.job_id], lost = self._reconcile_job(job, state, job.job_id in known)
+            reopen = reopen or lost
+        if reopen and state.status == "done":
+            state.status = "pending"
+            store.set_part(part.name, status="pending")
         self.counts["skipped"] += sum(s == "done" for s in statuses.values())
         if state.status in ("done", "failed"):
             return  # frozen: its promotion was made on these results
@@ -183,45 +187,33 @@ class Scheduler:
             if statuses[job.job_id] == "failed":
                 store.mark_pending(job.job_id)
             self.queue.append(job)
-        base_rows = {(r["bot"], r["track"], r["reference"]): r
-                     for r in store.baseline_rows(part.name)}  # fmt: skip
-        for job in state.baselines.values():
-            key = (job.meta["bot"], job.meta["track"], job.meta["reference"])
-            if (base_rows.get(key, {}).get("status") != "done"
-                    or not BaselineFolder(job.out_dir).holds(job.config_hash)):
-                self.queue.append(job)
-        self.queue.sort(key=lambda j: (j.position, j.kind != "train"))
+        self.queue.sort(key=lambda j: (j.position, QUEUE_ORDER[j.kind]))
 
-    def _materialise_race(self, state: _PartState) -> None:
-        """A race part's one job: recorded, recovered from complete files, or queued."""
-        name = state.planned.part.name
-        job = race_job(self.planner, state.planned.position, self.store, state.variants or [])
-        if len(job.meta["entrants"]) < 2:
-            self._fail_part(name, f"{len(job.meta['entrants'])} car(s) to race (promoted "
-                            "entrants with a checkpoint, and bots); a race needs two")
-            return
-        state.race = job
-        store = self.store
-        store.add_race(job.meta)
-        store.set_part(name, entrants=job.meta["entrants"])
-        status = (store.race(name) or {}).get("status")
-        complete = series_complete(job)
-        if status == "done" and not complete:  # a race file was deleted: race it again
-            store.set_race(name, status="pending")
-            status = "pending"
-            if state.status == "done":
-                state.status = "pending"
-                store.set_part(name, status="pending")
-        elif status != "done" and complete:  # finished before the index knew
-            store.set_race(name, status="done", reason=None)
-            self.counts["recovered"] += 1
-            status = "done"
+    def _reconcile_job(self, job: Job, state: _PartState, known: bool) -> tuple[str, bool]:
+        """The job's status after trusting its folder: a finished folder the index missed (a
+        crash, a rebuilt index, a promotion made again) is recorded instead of run; a done job
+        whose files are gone goes by its kind's ``lost_files``. Returns the status and whether
+        the job re-opens its part."""
+        kind = kind_of(job.kind)
+        status = (self.store.job(job.job_id) or {}).get("status", "pending")
         if status == "done":
-            self.counts["skipped"] += 1
-        if state.status in ("done", "failed") or status == "done":
-            return
-        self.queue.append(job)
-        self.queue.sort(key=lambda j: (j.position, j.kind != "train"))
+            if kind.lost_files == "trust_index" or kind.finished(job):
+                return status, False
+            reopen = kind.lost_files == "reopen_part"
+            if reopen or state.status not in ("done", "failed"):
+                self.store.mark_pending(job.job_id)
+                return "pending", reopen
+            return status, False
+        if kind.finished(job):
+            try:
+                result = kind.result(job)
+            except CorruptResultError as err:
+                raise CorruptResultError(f"{err}; remove the job folder {job.out_dir} to run "
+                                         "that job again") from None
+            self.store.mark_done(job.job_id, result, None)
+            self.counts["recovered"] += 1
+            return "done", False
+        return status, not known and kind.lost_files == "reopen_part"
 
     # -------------------------------------------------------------- main loop
     def run(self, pool: Executor) -> None:
@@ -236,7 +228,8 @@ class Scheduler:
                 self.attempts[job.job_id] = self.attempts.get(job.job_id, 0) + 1
                 self._record_start(job)
                 if self.progress:
-                    self.progress.job_started(slot, job.job_id, job.episodes)
+                    self.progress.job_started(slot, job.job_id,
+                                              kind_of(job.kind).progress_total(job))
             self._update_total()
             for event in pool.poll(0.5):
                 self._handle(event)
@@ -247,34 +240,19 @@ class Scheduler:
     def abandon(self) -> None:
         """After an interrupt: the jobs that were running go back to pending in the index."""
         for job, _slot in self.running.values():
-            if job.kind == "train":
-                self.store.mark_pending(job.job_id)
-            elif job.kind == "race":
-                self.store.set_race(job.part, status="pending")
-            else:
-                self.store.set_baseline(_bkey(job), status="pending")
+            self.store.mark_pending(job.job_id)
         self.running.clear()
 
     def _update_total(self) -> None:
         if self.progress is None:
             return
-        total = sum(len(s.jobs) + len(s.baselines) + (s.race is not None)
-                    for s in self.parts.values())
+        total = sum(len(s.jobs) for s in self.parts.values())
         done = sum(r["status"] in ("done", "failed") and r["job_id"] not in self.running
-                   for r in self.store.job_rows())  # fmt: skip
-        done += sum(r["status"] in ("done", "failed") for r in self.store.baseline_rows())
-        done += sum(r["status"] in ("done", "failed") for r in self.store.race_rows()
-                    if r["part"] in self.parts)
+                   for r in self.store.rows() if r["part"] in self.parts)  # fmt: skip
         self.progress.set_total(total, done)
 
     def _record_start(self, job: Job) -> None:
-        if job.kind == "train":
-            self.store.mark_running(job.job_id, None)
-        elif job.kind == "race":
-            self.store.set_race(job.part, status="running", reason=None, attempts="+1",
-                                started_at=now_iso())
-        else:
-            self.store.set_baseline(_bkey(job), status="running")
+        self.store.mark_running(job.job_id, None)
 
     def _handle(self, event: Event) -> None:
         if self.on_event is not None:
@@ -284,7 +262,7 @@ class Scheduler:
             return
         job, slot = entry
         if event.kind == "started":
-            if job.kind == "train" and event.pid is not None:
+            if event.pid is not None:
                 self.store.set_worker_pid(job.job_id, event.pid)
         elif event.kind == "progress":
             if self.progress:
@@ -305,42 +283,18 @@ class Scheduler:
 
     def _record_failed(self, job: Job, slot: int, reason: str, wall_s: float,
                        retry: bool) -> None:
+        self.store.mark_failed(job.job_id, reason, wall_s)
         if retry and self.attempts[job.job_id] <= self.retries:
             self.counts["retried"] += 1
-            if job.kind == "train":
-                self.store.mark_failed(job.job_id, reason, wall_s)
-                self.store.mark_pending(job.job_id)
+            self.store.mark_pending(job.job_id)
             self.queue.insert(0, job)
         else:
             self.counts["failed"] += 1
-            if job.kind == "train":
-                self.store.mark_failed(job.job_id, reason, wall_s)
-            elif job.kind == "race":
-                self.store.set_race(job.part, status="failed", reason=reason[:2000],
-                                    finished_at=now_iso(), wall_s=wall_s)
-            else:
-                self.store.set_baseline(_bkey(job), status="failed", reason=reason)
         if self.progress:
             self.progress.job_ended(slot, f"FAILED {job.job_id}")
 
     def _record_done(self, job: Job, event: Event) -> None:
-        if job.kind == "train":
-            metrics = job_metrics(job.out_dir, job.config_hash)
-            self.store.mark_done(job.job_id, metrics, event.wall_s)
-            return
-        if job.kind == "race":
-            if not series_complete(job):
-                raise CorruptResultError(f"{job.out_dir}: the race series ended without all "
-                                         "its race files and series.json")
-            self.store.set_race(job.part, status="done", reason=None, finished_at=now_iso(),
-                                wall_s=event.wall_s)
-            return
-        result = baseline_result(job.out_dir)
-        self.store.set_baseline(
-            _bkey(job), status="done", reason=None, best_lap_s=result["best_lap_s"],
-            damage=result["damage"], finished=int(bool(result["finished"])),
-            reference_limit_s=result["reference_limit_s"],
-        )
+        self.store.mark_done(job.job_id, kind_of(job.kind).result(job), event.wall_s)
 
     # -------------------------------------------------------------- parts and promotion
     def _close_finished_parts(self) -> None:
@@ -363,14 +317,13 @@ class Scheduler:
 
     def _finish_part(self, state: _PartState) -> None:
         part = state.planned.part
-        rows = self.store.job_rows(part.name)
-        failed = [r for r in rows if r["status"] == "failed"]
+        every = self.store.rows(part=part.name)
+        failed = [r for r in every if r["status"] == "failed"]
+        rows = self.store.rows(TRAIN.name, part.name)  # entrants rank on their training runs
         ranking = rank_entrants(rows)
         if part.selection.kind == "general":
             self._select_general(state, rows)
-        reason = f"{len(failed)} of {len(rows)} jobs failed" if failed else None
-        if part.kind == "race" and (self.store.race(part.name) or {}).get("status") == "failed":
-            reason = f"race series failed: {(self.store.race(part.name) or {}).get('reason')}"
+        reason = f"{len(failed)} of {len(every)} jobs failed" if failed else None
         promoted = dict((self.store.part(part.name) or {}).get("promoted") or {})
         for name in self.order:
             other = self.parts[name]
@@ -423,6 +376,3 @@ class Scheduler:
             item["chosen"] = True
         self.store.set_general_models(part.name, found)
 
-
-def _bkey(job: Job) -> tuple[str, str, str, str]:
-    return (job.part, job.meta["bot"], job.meta["track"], job.meta["reference"])

@@ -1,12 +1,16 @@
 """The results index: ``index.sqlite`` of one tournament, written by the parent process only.
 
-Tables ``jobs``, ``parts``, ``baselines``, ``general_models``, ``races`` (one row per race
-part's series: status only, the results are the race files) and ``meta``; their schema, the file
-names and the folder layout are ``results.layout``'s. Job folders are written by workers, each
-file atomically, ``summary.json`` last, so a folder with ``summary.json`` is a finished job
-whatever the index says: :meth:`Store.reconcile` trusts the files after a crash. An index that
-is not SQLite, or lacks a column, is a ``CorruptResultError`` naming the file;
-:meth:`Store.move_aside` makes room to rebuild it from the folders (``run --rebuild-index``).
+Tables ``jobs`` (every job of every kind, one row per job id: its kind, status, attempts and
+times, with ``attrs`` and ``result`` JSON objects whose keys its ``tourney.kinds`` object
+declares), ``parts``, ``general_models`` and ``meta``; their schema, the file names and the
+folder layout are ``results.layout``'s. The store knows no kind: it keeps rows by job id and
+hands them back flat (``results.index.decode_job``). Job folders are written by workers, each
+file atomically, the finishing file last, so the folders are the truth after a crash: the
+scheduler records a finished folder the index missed (``tourney.kinds.JobKind.finished``).
+An index of the older layout (a table per kind) is migrated in place, in one transaction, the
+first time a run opens it. An index that is not SQLite, or lacks a column, is a
+``CorruptResultError`` naming the file; :meth:`Store.move_aside` makes room to rebuild it from
+the folders (``run --rebuild-index``).
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ import json
 import os
 import sqlite3
 import time
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -23,11 +27,8 @@ from typing import Any
 import pandas as pd
 
 from formula_tourney.results.folder import CorruptResultError, JobFolder
+from formula_tourney.results.index import decode_job, is_legacy, legacy_job_rows
 from formula_tourney.results.layout import INDEX_FILE, INDEX_SCHEMA, INDEX_TABLES, JOB_TABLES
-
-JobMetrics = Callable[[Path, str | None], Mapping[str, Any]]
-"""Reads a finished job folder (and the config hash the index expects of it) into the index's
-numbers (``tourney.outcomes.job_metrics``)."""
 
 REBUILD_HINT = "run again with --rebuild-index to move it aside and rebuild it from the job folders"
 
@@ -64,6 +65,7 @@ class Store:
                 # crash-safe for committed transactions in WAL mode (only the last may be lost).
                 db.execute("PRAGMA journal_mode=WAL")
                 db.execute("PRAGMA synchronous=NORMAL")
+                self._migrate(db)
                 self._check_columns(db)  # before the schema script adds to a foreign file
                 db.executescript(INDEX_SCHEMA)
             except sqlite3.DatabaseError as err:
@@ -74,6 +76,36 @@ class Store:
                 raise
             self._db = db
         return self._db
+
+    def _migrate(self, db: sqlite3.Connection) -> None:
+        """Turn an index of the older layout (a table per job kind) into the current one, in
+        one transaction: its rows as ``results.index.legacy_job_rows`` reads them."""
+        present = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        if not is_legacy(db, present):
+            return
+        try:
+            rows = legacy_job_rows(db, present)
+        except ValueError as err:  # a JSON column that is not JSON
+            raise CorruptResultError(f"{self.index_path}: cannot read the older index's jobs "
+                                     f"({err}); {REBUILD_HINT}") from None
+        db.execute("BEGIN IMMEDIATE")
+        try:
+            for table in ("jobs", "baselines", "races"):
+                db.execute(f"DROP TABLE IF EXISTS {table}")
+            for statement in INDEX_SCHEMA.split(";"):
+                if statement.strip():
+                    db.execute(statement)
+            _insert(db, rows)
+            for row in rows:
+                db.execute("UPDATE jobs SET status=?, reason=?, attempts=?, started_at=?, "
+                           "finished_at=?, wall_s=?, worker_pid=?, result=? WHERE job_id=?",
+                           (row["status"] or "pending", row["reason"], row["attempts"],
+                            row["started_at"], row["finished_at"], row["wall_s"],
+                            row["worker_pid"], _json(row["result"]), row["job_id"]))
+        except BaseException:
+            db.execute("ROLLBACK")
+            raise
+        db.execute("COMMIT")
 
     def _check_columns(self, db: sqlite3.Connection) -> None:
         for table, columns in INDEX_TABLES.items():
@@ -173,48 +205,36 @@ class Store:
         with self.transaction() as db:
             db.execute(f"UPDATE parts SET {cols} WHERE part=?", (*args, part))
 
-    def add_jobs(self, rows: Iterable[dict[str, Any]]) -> None:
-        """Insert planned training jobs that are not in the index yet (resume keeps the rest)."""
+    def add_jobs(self, rows: Iterable[Mapping[str, Any]]) -> None:
+        """Record planned jobs of any kind (``tourney.kinds.JobKind.index_row``: job_id, kind,
+        part, position, path, config_hash, attrs). A job already recorded keeps its status,
+        attempts and result; its attrs and config hash become the plan's, so a job of changed
+        settings no longer matches a finished folder of the old ones."""
         with self.transaction() as db:
-            for row in rows:
-                db.execute(
-                    "INSERT OR IGNORE INTO jobs(job_id, study, part, entrant, variant, family, "
-                    "seed, reference, lac, train_tracks, status, attempts, path, position, "
-                    "config_hash) VALUES (?,?,?,?,?,?,?,?,?,?,'pending',0,?,?,?)",
-                    (
-                        row["job_id"], row["study"], row["part"], row["entrant"],
-                        row["variant"], row["family"], row["seed"], row["reference"],
-                        int(row["lac"]), json.dumps(row["train_tracks"]), row["path"],
-                        row["position"], row["config_hash"],
-                    ),
-                )
-
-    def add_baselines(self, rows: Iterable[dict[str, Any]]) -> None:
-        with self.transaction() as db:
-            for row in rows:
-                db.execute(
-                    "INSERT OR IGNORE INTO baselines(part, bot, track, reference, status, path) "
-                    "VALUES (?,?,?,?,'pending',?)",
-                    (row["part"], row["bot"], row["track"], row["reference"], row["path"]),
-                )
+            _insert(db, rows)
 
     # ------------------------------------------------------------------ job lifecycle
     def job(self, job_id: str) -> dict[str, Any] | None:
+        """One job's row, flat (shared columns, then its attrs and result keys)."""
         rows = self._query("SELECT * FROM jobs WHERE job_id=?", (job_id,))
-        return None if not rows else dict(rows[0])
+        return None if not rows else decode_job(dict(rows[0]))
 
-    def job_rows(self, part: str | None = None) -> list[dict[str, Any]]:
-        if part is None:
-            rows = self._query("SELECT * FROM jobs ORDER BY position, job_id")
-        else:
-            rows = self._query("SELECT * FROM jobs WHERE part=? ORDER BY position, job_id", (part,))
-        return [dict(r) for r in rows]
+    def rows(self, kind: str | None = None, part: str | None = None) -> list[dict[str, Any]]:
+        """Flat rows of the jobs of one kind and/or part (all when None), in plan order."""
+        where = [(col, value) for col, value in (("kind", kind), ("part", part))
+                 if value is not None]
+        sql = "SELECT * FROM jobs"
+        if where:
+            sql += " WHERE " + " AND ".join(f"{col}=?" for col, _ in where)
+        rows = self._query(sql + " ORDER BY position, job_id", tuple(v for _, v in where))
+        return [decode_job(dict(r)) for r in rows]
 
-    def drop_jobs_except(self, part: str, keep: Iterable[str]) -> int:
-        """Forget a part's jobs that its (re-computed) entrants no longer include; their folders
-        stay on disk and are picked up again if those entrants come back. Returns how many."""
+    def drop_jobs_except(self, part: str, kind: str, keep: Iterable[str]) -> int:
+        """Forget a part's jobs of one kind that its (re-computed) plan no longer includes;
+        their folders stay on disk and are picked up again if those jobs come back. Returns
+        how many."""
         keep = set(keep)
-        gone = [r["job_id"] for r in self.job_rows(part) if r["job_id"] not in keep]
+        gone = [r["job_id"] for r in self.rows(kind, part) if r["job_id"] not in keep]
         with self.transaction() as db:
             db.executemany("DELETE FROM jobs WHERE job_id=?", [(j,) for j in gone])
             db.executemany("DELETE FROM general_models WHERE job_id=?", [(j,) for j in gone])
@@ -232,17 +252,14 @@ class Store:
                 (now_iso(), worker_pid, job_id),
             )
 
-    def mark_done(self, job_id: str, metrics: dict[str, Any], wall_s: float | None) -> None:
+    def mark_done(self, job_id: str, result: Mapping[str, Any], wall_s: float | None) -> None:
+        """The job finished: its kind's result (``JobKind.result``) and the wall time of this
+        attempt (None when recovered from its folder)."""
         with self.transaction() as db:
             db.execute(
-                "UPDATE jobs SET status='done', reason=NULL, finished_at=?, wall_s=?, "
-                "best_lap_s=?, finished=?, damage=?, train_seconds=?, test_distance_m=? "
+                "UPDATE jobs SET status='done', reason=NULL, finished_at=?, wall_s=?, result=? "
                 "WHERE job_id=?",
-                (
-                    now_iso(), wall_s, _num(metrics.get("best_lap_s")),
-                    int(bool(metrics.get("finished"))), _num(metrics.get("damage")),
-                    _num(metrics.get("seconds")), _num(metrics.get("distance_m")), job_id,
-                ),
+                (now_iso(), wall_s, _json(dict(result)), job_id),
             )
 
     def mark_failed(self, job_id: str, reason: str, wall_s: float | None) -> None:
@@ -258,58 +275,6 @@ class Store:
             db.execute("UPDATE jobs SET status='pending', worker_pid=NULL WHERE job_id=?",
                        (job_id,))
 
-    def set_baseline(self, key: tuple[str, str, str, str], **values: Any) -> None:
-        cols = ", ".join(f"{k}=?" for k in values)
-        with self.transaction() as db:
-            db.execute(
-                f"UPDATE baselines SET {cols} WHERE part=? AND bot=? AND track=? AND reference=?",
-                (*[_num(v) if isinstance(v, float) else v for v in values.values()], *key),
-            )
-
-    def baseline_rows(self, part: str | None = None) -> list[dict[str, Any]]:
-        sql = "SELECT * FROM baselines"
-        args: tuple[Any, ...] = ()
-        if part is not None:
-            sql += " WHERE part=?"
-            args = (part,)
-        return [dict(r) for r in self._query(sql + " ORDER BY part, bot, track", args)]
-
-    def add_race(self, row: Mapping[str, Any]) -> None:
-        """Record a race part's series (part, track, races, entrants, path, config_hash). A
-        series already recorded keeps its status unless its config hash changed (other
-        entrants or settings: another series), which makes it pending again."""
-        with self.transaction() as db:
-            db.execute(
-                "INSERT OR IGNORE INTO races(part, track, races, entrants, status, attempts, "
-                "path, config_hash) VALUES (?,?,?,?,'pending',0,?,?)",
-                (row["part"], row["track"], row["races"], json.dumps(row["entrants"]),
-                 row["path"], row["config_hash"]),
-            )
-            db.execute(
-                "UPDATE races SET status='pending', reason=NULL, track=?, races=?, entrants=?, "
-                "config_hash=? WHERE part=? AND config_hash IS NOT ?",
-                (row["track"], row["races"], json.dumps(row["entrants"]), row["config_hash"],
-                 row["part"], row["config_hash"]),
-            )
-
-    def race(self, part: str) -> dict[str, Any] | None:
-        rows = self._query("SELECT * FROM races WHERE part=?", (part,))
-        return None if not rows else _decode_race(dict(rows[0]))
-
-    def set_race(self, part: str, **values: Any) -> None:
-        """Update a race series' row; ``attempts=+1`` counts one more attempt."""
-        bump = values.pop("attempts", None) == "+1"
-        cols = [f"{k}=?" for k in values] + (["attempts=attempts+1"] if bump else [])
-        if not cols:
-            return
-        with self.transaction() as db:
-            db.execute(f"UPDATE races SET {', '.join(cols)} WHERE part=?",
-                       (*[_num(v) if isinstance(v, float) else v for v in values.values()],
-                        part))
-
-    def race_rows(self) -> list[dict[str, Any]]:
-        return [_decode_race(dict(r)) for r in self._query("SELECT * FROM races ORDER BY part")]
-
     def set_general_models(self, part: str, rows: list[dict[str, Any]]) -> None:
         with self.transaction() as db:
             db.execute("DELETE FROM general_models WHERE part=?", (part,))
@@ -324,58 +289,24 @@ class Store:
                     ),
                 )
 
-    def reconcile(self, job_metrics: JobMetrics) -> dict[str, int]:
-        """After a crash or kill -9 of the parent: trust the job folders over the index.
-
-        A folder with ``summary.json`` is done (the parent may have died before recording it;
-        ``job_metrics`` reads its numbers); a 'running' job without one was interrupted and goes
-        back to 'pending'. A finished folder whose files cannot be read is a CorruptResultError
-        naming the file. Returns counts.
-        """
-        fixed = {"recovered_done": 0, "requeued": 0}
-        for row in self.job_rows():
-            if row["status"] == "done":
-                continue
-            if self.recover(row["job_id"], job_metrics):
-                fixed["recovered_done"] += 1
-            elif row["status"] == "running":
-                self.mark_pending(row["job_id"])
-                fixed["requeued"] += 1
+    def reconcile(self) -> int:
+        """After a crash or kill -9 of the parent: the jobs and parts it left running go back
+        to pending (the scheduler then records the finished folders among them, from the
+        files). Returns how many jobs."""
         with self.transaction() as db:
-            db.execute("UPDATE baselines SET status='pending' WHERE status='running'")
-            db.execute("UPDATE races SET status='pending' WHERE status='running'")
+            requeued = db.execute("UPDATE jobs SET status='pending', worker_pid=NULL "
+                                  "WHERE status='running'").rowcount
             db.execute("UPDATE parts SET status='pending' WHERE status='running'")
-        return fixed
-
-    def recover(self, job_id: str, job_metrics: JobMetrics) -> bool:
-        """Mark a job done from its folder if that folder is finished; whether it was."""
-        row = self.job(job_id) or {}
-        job_dir = self.root / (row.get("path") or job_id)
-        if not JobFolder(job_dir).is_finished():
-            return False
-        try:
-            metrics = job_metrics(job_dir, row.get("config_hash"))
-        except CorruptResultError as err:
-            raise CorruptResultError(f"{err}; remove the job folder {job_dir} to run that job "
-                                     "again") from None
-        self.mark_done(job_id, dict(metrics), None)
-        return True
+        return requeued
 
     # ------------------------------------------------------------------ read helpers (report)
-    def jobs(self) -> pd.DataFrame:
-        """All jobs as a DataFrame (train_tracks decoded to lists, lac as bool)."""
-        frame = pd.DataFrame(self.job_rows())
-        if not frame.empty:
-            frame["train_tracks"] = frame["train_tracks"].map(json.loads)
-            frame["lac"] = frame["lac"].astype(bool)
-        return frame
+    def jobs(self, kind: str | None = None) -> pd.DataFrame:
+        """The jobs of one kind (all when None) as a DataFrame of flat rows."""
+        return pd.DataFrame(self.rows(kind))
 
     def parts(self) -> pd.DataFrame:
         rows = self._query("SELECT * FROM parts ORDER BY position")
         return pd.DataFrame([_decode_part(dict(r)) for r in rows])
-
-    def baselines(self) -> pd.DataFrame:
-        return pd.DataFrame(self.baseline_rows())
 
     def general_models(self) -> pd.DataFrame:
         rows = [dict(r) for r in self._query("SELECT * FROM general_models ORDER BY job_id")]
@@ -403,10 +334,23 @@ def _decode_part(row: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
-def _decode_race(row: dict[str, Any]) -> dict[str, Any]:
-    if row.get("entrants"):
-        row["entrants"] = json.loads(row["entrants"])
-    return row
+def _insert(db: sqlite3.Connection, rows: Iterable[Mapping[str, Any]]) -> None:
+    for row in rows:
+        db.execute(
+            "INSERT INTO jobs(job_id, kind, part, position, path, config_hash, attrs) "
+            "VALUES (?,?,?,?,?,?,?) ON CONFLICT(job_id) DO UPDATE SET kind=excluded.kind, "
+            "part=excluded.part, position=excluded.position, path=excluded.path, "
+            "config_hash=excluded.config_hash, attrs=excluded.attrs",
+            (row["job_id"], row["kind"], row["part"], row["position"], row["path"],
+             row["config_hash"], _json(row["attrs"])),
+        )
+
+
+def _json(value: Mapping[str, Any] | None) -> str | None:
+    """A JSON object for the index: NaN becomes null (JSON has none)."""
+    if value is None:
+        return None
+    return json.dumps({k: _num(v) if isinstance(v, float) else v for k, v in value.items()})
 
 
 def _num(value: Any) -> float | None:

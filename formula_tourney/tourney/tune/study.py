@@ -1,9 +1,9 @@
 """The Optuna side of tuning: storage, sampler and pruner, suggestions, and trial retries.
 
-Shared by the parent (``tourney.tune``, which creates the study) and the worker processes
-(``tourney.tune_worker``, which load it and run trials). Each worker samples from its own random
+Shared by the parent (``tourney.tune.run``, which creates the study) and the worker processes
+(``tourney.tune.worker``, which load it and run trials). Each worker samples from its own random
 stream, derived from ``[sampler] seed``, the study's size when the run started and the worker's
-serial number: workers that all started from one seed drew the same parameters (issue 14).
+serial number: workers that all started from one seed drew the same parameters.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from optuna.storages import JournalStorage
 from optuna.storages.journal import JournalFileBackend
 from optuna.trial import TrialState
 
-from formula_tourney.tourney.tune_spec import SearchParam, TuneSpec
+from formula_tourney.tourney.tune.spec import SearchParam, TuneSpec
 
 HEARTBEAT_INTERVAL_S = 30
 HEARTBEAT_GRACE_S = 120

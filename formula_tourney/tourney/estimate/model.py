@@ -1,7 +1,7 @@
 """What a tournament will cost before it runs: jobs, env steps, CPU-hours and wall time.
 
 The model of one training job, from its run specification and the rates measured here
-(``tourney.estimate_calibrate``)::
+(``estimate.calibrate``)::
 
     steps    = episodes x L            L: mean exploring episode length measured, <= max_steps
                (at most ``env_steps``, the schedule's budget; then episodes = env_steps / L)
@@ -35,11 +35,11 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
-from formula_tourney.tourney.estimate_calibrate import Rates, WorkerStart
+from formula_tourney.tourney.estimate.calibrate import Rates, WorkerStart
 from formula_tourney.training.spec import RunSpec
 
 RAY_INIT_S = 13.5
-"""``ray.init`` measured at 12-15 s on this kind of machine (DESIGN.md, Orchestration)."""
+"""``ray.init`` measured at 12-15 s on this kind of machine."""
 Z95 = 1.96
 
 

@@ -1,7 +1,7 @@
 """A tune worker process: load the study (never create it) and run trials until it holds enough.
 
 A trial is one training job (``tourney.runner.run_job``) whose run specification is the tune
-file's ``[train]`` with the trial's hyperparameters (``tourney.tune_spec.trial_spec``). The
+file's ``[train]`` with the trial's hyperparameters (``tourney.tune.spec.trial_spec``). The
 objective (``[objective] kind``) is the best clean test lap on the key track, or the CPU-seconds
 of training to a milestone (:class:`CpuMilestone`, on the training loop's CPU clock; the trial's
 schedule carries the objective's ``budget_cpu_s``, so the loop ends it there as it ends any run
@@ -24,8 +24,8 @@ from formula_tourney.tourney.executors import die_with_parent
 from formula_tourney.tourney.jobs import Job
 from formula_tourney.tourney.outcomes import job_metrics
 from formula_tourney.tourney.runner import run_job
-from formula_tourney.tourney.tune_spec import Objective, TuneSpec, trial_spec
-from formula_tourney.tourney.tune_study import (
+from formula_tourney.tourney.tune.spec import Objective, TuneSpec, trial_spec
+from formula_tourney.tourney.tune.study import (
     counted,
     make_pruner,
     make_sampler,

@@ -1,11 +1,11 @@
 """Optuna pre-selection of one variant's hyperparameters: the parent that runs a study.
 
 The paper tunes on the oval before the tournament proper (Study 1, part 1); this is that step as
-an Optuna study (TPE, pruning on the periodic test laps). The file is ``tourney.tune_spec``'s,
-the Optuna plumbing ``tourney.tune_study``'s, a trial ``tourney.tune_worker``'s.
+an Optuna study (TPE, pruning on the periodic test laps). The file is ``tune.spec``'s,
+the Optuna plumbing ``tune.study``'s, a trial ``tune.worker``'s.
 
 Processes: the study is created once, in the parent (two processes creating one SQLite study at
-once crashed one, DESIGN.md); worker processes load it and run trials. Storage defaults to a
+once crashed one); worker processes load it and run trials. Storage defaults to a
 ``JournalFileBackend`` under the results folder (~10x faster than SQLite for two processes, and
 needs no server); ``--storage URL`` takes an RDB for many machines, where Optuna's heartbeats plus
 ``RetryFailedTrialCallback`` retry trials whose process died. The journal has no heartbeats, so
@@ -34,12 +34,12 @@ from optuna.trial import TrialState
 
 from formula_tourney.agents.variants import ALL_VARIANTS
 from formula_tourney.errors import UserInputError
-from formula_tourney.tourney.best_params import write_best_params
 from formula_tourney.tourney.executors import THREAD_ENV, default_workers
 from formula_tourney.tourney.lock import RunLock
 from formula_tourney.tourney.spec import load_spec
-from formula_tourney.tourney.tune_spec import TuneSpec, check_tune, load_tune_spec
-from formula_tourney.tourney.tune_study import (
+from formula_tourney.tourney.tune.best_params import write_best_params
+from formula_tourney.tourney.tune.spec import TuneSpec, check_tune, load_tune_spec
+from formula_tourney.tourney.tune.study import (
     counted,
     decode_params,
     fail_and_retry,
@@ -49,7 +49,7 @@ from formula_tourney.tourney.tune_study import (
     storage_for,
     worker_tag,
 )
-from formula_tourney.tourney.tune_worker import tune_worker
+from formula_tourney.tourney.tune.worker import tune_worker
 from formula_tourney.training.spec import RunSpec
 
 Report = Callable[[str], None]

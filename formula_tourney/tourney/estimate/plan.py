@@ -1,6 +1,6 @@
 """A planned tournament's cost estimate: measure the rates its jobs need, then apply the model.
 
-Every distinct job cost (``tourney.estimate.rate_key``: agent, env settings, track, LAC) is
+Every distinct job cost (``estimate.model.rate_key``: agent, env settings, track, LAC) is
 measured once, for ``seconds``, on the run specification the planner built for that job
 (``Planner.run_spec``, the same spec the job would get); each distinct baseline drive is timed by
 driving it (``bots.baselines.bot_report``; the lines it computes are cached on disk, as the run
@@ -15,7 +15,8 @@ from dataclasses import replace
 
 from formula_tourney.bots.baselines import bot_report
 from formula_tourney.sim.catalog import load_track
-from formula_tourney.tourney.estimate import (
+from formula_tourney.tourney.estimate.calibrate import Rates, WorkerStart, calibrate, worker_start
+from formula_tourney.tourney.estimate.model import (
     Estimate,
     JobCost,
     PartCost,
@@ -23,7 +24,6 @@ from formula_tourney.tourney.estimate import (
     job_cost,
     rate_key,
 )
-from formula_tourney.tourney.estimate_calibrate import Rates, WorkerStart, calibrate, worker_start
 from formula_tourney.tourney.plan import PlannedPart, Planner, possible_variants, resolve_variant
 from formula_tourney.training.spec import RunSpec
 

@@ -6,7 +6,7 @@ built by ``training.spec.build_run_spec`` through :func:`trial_spec`, the same p
 tournament plan takes; :func:`check_tune` builds the specs of the search space's corners in the
 parent, so an impossible value fails before a study is created. ``[objective]`` picks what a
 trial scores: its best clean test lap (the default), or the CPU-seconds it takes to a milestone
-(``tourney.tune_worker.CpuMilestone``).
+(``tourney.tune.worker.CpuMilestone``).
 """
 
 from __future__ import annotations

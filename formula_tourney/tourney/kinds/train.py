@@ -1,0 +1,81 @@
+"""The training job: one seed of one entrant, ``training.loop.train`` on its run spec.
+
+The plan builds the run specification once, in the parent (``tourney.plan.Planner.jobs``); the
+worker reads it back from the job's JSON (nothing is re-validated or re-defaulted there) and the
+trainer writes the job folder, ``summary.json`` last. Its result in the index is the numbers
+promotion ranks on (``tourney.outcomes.job_metrics``). A done training job is trusted: its
+part's promotion was decided on its numbers.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from formula_tourney.results.folder import JobFolder
+from formula_tourney.tourney.jobs import Job
+from formula_tourney.tourney.kinds.base import JobKind, Progress, fresh_dir, number
+from formula_tourney.tourney.outcomes import job_metrics
+from formula_tourney.tourney.plan import PlannedPart, Planner, possible_variants
+from formula_tourney.tourney.store import Store
+from formula_tourney.training.spec import RunSpec
+
+STATUSES = ("done", "failed", "pending", "running")
+
+
+class TrainKind(JobKind):
+    """A training run of one entrant's seed."""
+
+    name = "train"
+    attrs = ("study", "entrant", "variant", "family", "seed", "reference", "lac",
+             "train_tracks")
+    result_fields = ("best_lap_s", "finished", "damage", "train_seconds", "test_distance_m")
+    lost_files = "trust_index"
+    changed_settings = "already ran in {root} with other settings"
+
+    def make(self, planner: Planner, planned: PlannedPart, store: Store,
+             variants: list[str]) -> list[Job]:
+        return planner.jobs(planned.position, variants)
+
+    def entrants(self, job: Job) -> list[str]:
+        return [job.meta["entrant"]]
+
+    def resume_jobs(self, planner: Planner, planned: PlannedPart, store: Store,
+                    retry_failed: bool) -> list[Job]:
+        """The part's jobs; for a promoted part, those of the variants the index holds."""
+        if planned.variants is not None:
+            return planned.jobs
+        held = {r["variant"] for r in store.rows(self.name, planned.part.name)}
+        possible = possible_variants(planner.spec, planned.part)
+        return planner.jobs(planned.position, [v for v in possible if v in held])
+
+    def finished(self, job: Job) -> bool:
+        return JobFolder(job.out_dir).is_finished()
+
+    def result(self, job: Job) -> dict[str, Any]:
+        metrics = job_metrics(job.out_dir, job.config_hash)
+        return {"best_lap_s": number(metrics["best_lap_s"]),
+                "finished": bool(metrics["finished"]), "damage": number(metrics["damage"]),
+                "train_seconds": number(metrics["seconds"]),
+                "test_distance_m": number(metrics["distance_m"])}
+
+    def show(self, planned: PlannedPart, rows: list[dict[str, Any]], root: Path
+             ) -> dict[str, Any]:
+        """How many of the part's training jobs are in each status."""
+        return {"jobs": {s: sum(r["status"] == s for r in rows) for s in STATUSES}}
+
+    def run(self, job: Job, progress: Progress | None) -> dict[str, Any]:
+        # training.loop imports torch and the env kernels: only worker processes pay for them.
+        from formula_tourney.training.loop import train
+
+        folder = JobFolder(job.out_dir)
+        if folder.is_finished():
+            return folder.summary()
+        spec = RunSpec.from_json(job.spec, f"job {job.job_id}")
+        fresh_dir(folder.path)
+        folder.write_tourney_meta({"job_id": job.job_id, **job.meta})
+        return dict(train(spec, folder.path, progress))
+
+    def progress_total(self, job: Job) -> int:
+        """The run's training episodes."""
+        return int(job.spec.get("schedule", {}).get("episodes") or 1)
