@@ -35,7 +35,7 @@ from formula_tourney.bots.line_offsets import reference_offsets  # noqa: E402
 from formula_tourney.sim.catalog import load_track  # noqa: E402
 from formula_tourney.training.demos import follower_for  # noqa: E402
 from formula_tourney.training.envs import RunEnvs  # noqa: E402
-from formula_tourney.training.spec import build_run_spec  # noqa: E402
+from formula_tourney.training.run_spec import build_run_spec  # noqa: E402
 
 GAMMA = 0.99
 

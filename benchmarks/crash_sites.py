@@ -32,7 +32,7 @@ from formula_tourney.results.folder import JobFolder  # noqa: E402
 from formula_tourney.results.layout import LAST_CHECKPOINT  # noqa: E402
 from formula_tourney.training.envs import RunEnvs  # noqa: E402
 from formula_tourney.training.evaluate import run_test_episode, start_positions  # noqa: E402
-from formula_tourney.training.spec import RunSpec  # noqa: E402
+from formula_tourney.training.run_spec import RunSpec  # noqa: E402
 
 
 def crash_positions(folder: JobFolder, length_m: float) -> tuple[int, list[float]]:

@@ -40,7 +40,7 @@ from formula_tourney.results.folder import JobFolder  # noqa: E402
 from formula_tourney.sim.car_params import CarParams  # noqa: E402
 from formula_tourney.sim.catalog import load_track  # noqa: E402
 from formula_tourney.sim.track import Track  # noqa: E402
-from formula_tourney.training.spec import RunSpec  # noqa: E402
+from formula_tourney.training.run_spec import RunSpec  # noqa: E402
 
 
 def run_lap(job: str) -> tuple[str, str, dict[str, np.ndarray] | None, float, CarParams]:

@@ -324,7 +324,7 @@ def run_sb3(task: dict[str, Any]) -> dict[str, Any]:
         start_positions,
         tests_row,
     )
-    from formula_tourney.training.spec import RunSpec
+    from formula_tourney.training.run_spec import RunSpec
 
     spec = RunSpec.from_json(task["spec"], "benchmark spec")
     from stable_baselines3 import SAC
@@ -537,14 +537,14 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="agent setting for every entrant, on top of its preset (repeatable)")
     ap.add_argument("--demos-set", action="append", default=[], metavar="KEY=VALUE",
-                    help="demonstration setting (training.spec.DemoSettings) for every "
+                    help="demonstration setting (training.run_spec.DemoSettings) for every "
                     "entrant, on top of its preset's demos (repeatable; adds demos to a "
                     "preset without them)")
     ap.add_argument("--env-set", action="append", default=[], metavar="KEY=VALUE",
                     help="env setting (sim.config.EnvSettings, e.g. track_pos_weight=0) for "
                     "every entrant and the SB3 anchor alike (repeatable)")
     ap.add_argument("--schedule-set", action="append", default=[], metavar="KEY=VALUE",
-                    help="schedule setting (training.spec.Schedule, e.g. cars=4) for every "
+                    help="schedule setting (training.run_spec.Schedule, e.g. cars=4) for every "
                     "entrant, on top of the benchmark's own (repeatable)")
     ap.add_argument("--no-sb3", action="store_true", help="skip the SB3 SAC anchor")
     ap.add_argument("--to-budget", action="store_true",
@@ -564,7 +564,7 @@ def main() -> None:
     from formula_tourney.errors import UserInputError
     from formula_tourney.sim.config import EnvSettings
     from formula_tourney.training.presets import get_preset
-    from formula_tourney.training.spec import build_run_spec
+    from formula_tourney.training.run_spec import build_run_spec
 
     try:
         car_overrides = EnvSettings.model_validate(env_overrides).car

@@ -1,7 +1,7 @@
 """Marks on a setting's pydantic Field that the run specification reads generically.
 
 A setting says once, on the Field that declares it (``json_schema_extra``), what the run
-specification (``training.spec``) needs to know about it beyond its value:
+specification (``training.run_spec``) needs to know about it beyond its value:
 
 - ``added_in_layout``: the results layout version during which the setting was added. The run
   specification leaves such a setting out of its JSON while it is at its default, so a run that

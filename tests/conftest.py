@@ -6,7 +6,7 @@ import pytest
 from training_fixtures import ring_track
 
 from formula_tourney.training import envs as run_envs
-from formula_tourney.training import spec as run_spec
+from formula_tourney.training import run_spec
 
 
 @pytest.fixture

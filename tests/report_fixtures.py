@@ -200,7 +200,7 @@ def _bot_trace(track: str, lap_s: float) -> pd.DataFrame:
 
 
 def run_spec(job: dict[str, Any]) -> dict[str, Any]:
-    """A run specification as ``training.spec.RunSpec.to_json`` writes it (the agent settings
+    """A run specification as ``training.run_spec.RunSpec.to_json`` writes it (the agent settings
     abridged: those the report reads, equal across entrants but for the ablation's flag)."""
     return {
         "variant": job["variant"],

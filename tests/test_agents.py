@@ -209,8 +209,8 @@ def _tampered(tmp_path, name: str, change) -> object:
     ],
 )  # fmt: skip
 def test_bad_checkpoints_give_one_line_errors(tmp_path, name, change, message) -> None:
-    """Issue 10, item 10: another variant's shapes, a missing key or a bad config used to give
-    tracebacks from eval and replay."""
+    """Another variant's shapes, a missing key or a bad config once gave tracebacks from eval and
+    replay: each is one line naming the checkpoint."""
     with pytest.raises(UserInputError, match=message) as err:
         load_checkpoint(_tampered(tmp_path, name, change))
     assert name in str(err.value) and "\n" not in str(err.value)

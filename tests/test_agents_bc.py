@@ -12,7 +12,7 @@ from formula_tourney.agents.families import make_agent
 from formula_tourney.agents.mlp_update import BCLoss
 from formula_tourney.agents.variants import AgentConfig, get_variant
 from formula_tourney.errors import UserInputError
-from formula_tourney.training.spec import DemoSettings, build_run_spec
+from formula_tourney.training.run_spec import DemoSettings, build_run_spec
 
 D = 6
 SMALL = {"hidden": (32, 24), "batch_size": 16, "buffer_size": 1000}

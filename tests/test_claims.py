@@ -25,7 +25,7 @@ from formula_tourney.report.paper_tables import Context
 from formula_tourney.results.folder import JobFolder
 from formula_tourney.tourney.spec import parse_spec
 from formula_tourney.training.loop import train
-from formula_tourney.training.spec import build_run_spec
+from formula_tourney.training.run_spec import build_run_spec
 
 E2 = 2.0 * math.exp(-2.0)  # the fixture template's learning term at episode 300
 

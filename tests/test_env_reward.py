@@ -14,7 +14,7 @@ from formula_tourney.sim import kernels as K
 from formula_tourney.sim import reward as R
 from formula_tourney.sim.config import EnvSettings
 from formula_tourney.sim.env import FormulaRacingEnv, FormulaRacingVectorEnv
-from formula_tourney.training.spec import build_run_spec
+from formula_tourney.training.run_spec import build_run_spec
 
 TRACK = stadium()  # 400 m straights, radius 80 m, 12 m wide
 

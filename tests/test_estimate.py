@@ -18,7 +18,7 @@ from formula_tourney.tourney.estimate.model import (
     job_cost,
     simulate_wall,
 )
-from formula_tourney.training.spec import build_run_spec
+from formula_tourney.training.run_spec import build_run_spec
 
 
 def rates(**kw) -> Rates:

@@ -21,7 +21,7 @@ from formula_tourney.agents.variants import AgentConfig, get_variant
 from formula_tourney.errors import UserInputError
 from formula_tourney.sim.env import FormulaRacingEnv
 from formula_tourney.training.evaluate import run_test_episode
-from formula_tourney.training.spec import build_run_spec
+from formula_tourney.training.run_spec import build_run_spec
 
 torch.set_num_threads(1)
 D = 6

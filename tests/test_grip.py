@@ -28,7 +28,7 @@ from formula_tourney.sim.env import FormulaRacingEnv, FormulaRacingVectorEnv
 from formula_tourney.tourney.api import plan_tournament
 from formula_tourney.training import loop
 from formula_tourney.training.envs import RunEnvs
-from formula_tourney.training.spec import RunSpec, build_run_spec
+from formula_tourney.training.run_spec import RunSpec, build_run_spec
 
 TRACK = stadium()  # 400 m straights, radius 80 m, 12 m wide
 

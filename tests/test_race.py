@@ -22,7 +22,7 @@ from formula_tourney.race.timing import RUNNING
 from formula_tourney.sim import kernels as K
 from formula_tourney.sim.catalog import load_track
 from formula_tourney.sim.multicar import lockstep_kernels as RK
-from formula_tourney.training.spec import build_run_spec
+from formula_tourney.training.run_spec import build_run_spec
 
 TRACK = stadium()
 

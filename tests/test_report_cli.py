@@ -316,7 +316,7 @@ def test_replay_end_to_end(tmp_path: Path, capsys) -> None:
     import formula_tourney  # noqa: F401 (registers the env)
     from formula_tourney.agents.checkpoints import save_checkpoint
     from formula_tourney.agents.ddpg import DDPGAgent
-    from formula_tourney.training.spec import build_run_spec
+    from formula_tourney.training.run_spec import build_run_spec
 
     env = gym.make("FormulaRacing-v0", config={"track": "oval"})
     obs_dim = int(np.prod(env.observation_space.shape))

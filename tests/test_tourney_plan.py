@@ -16,7 +16,7 @@ from formula_tourney.results.folder import BaselineFolder
 from formula_tourney.tourney.api import plan_tournament, run_tournament
 from formula_tourney.tourney.jobs import Job
 from formula_tourney.tourney.runner import run_job
-from formula_tourney.training.spec import RunSpec
+from formula_tourney.training.run_spec import RunSpec
 
 REPO = Path(__file__).resolve().parents[1]
 

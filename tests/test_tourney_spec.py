@@ -11,7 +11,7 @@ from formula_tourney.errors import UserInputError
 from formula_tourney.tourney.api import run_tournament
 from formula_tourney.tourney.plan import Planner
 from formula_tourney.tourney.spec import TomlLocator, entrant_name, load_spec
-from formula_tourney.training.spec import RunSpec
+from formula_tourney.training.run_spec import RunSpec
 
 GOOD = """\
 name = "t1"

@@ -15,7 +15,7 @@ from formula_tourney.sim.multicar import lockstep_kernels as RK
 from formula_tourney.tourney.api import plan_tournament
 from formula_tourney.training.envs import RunEnvs
 from formula_tourney.training.loop import train
-from formula_tourney.training.spec import RunSpec, build_run_spec
+from formula_tourney.training.run_spec import RunSpec, build_run_spec
 
 TINY_AGENT = {"hidden": [32, 32], "batch_size": 16, "learning_starts": 16}
 SCHEDULE = {"episodes": 2, "max_steps": 40, "test_every_episodes": 2, "test_starts": 1,

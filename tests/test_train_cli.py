@@ -19,7 +19,7 @@ from formula_tourney.commands.model_options import (
     field_options,
     with_field_options,
 )
-from formula_tourney.training.spec import DemoSettings, RunSpec, Schedule
+from formula_tourney.training.run_spec import DemoSettings, RunSpec, Schedule
 
 DOCUMENTED = ("--episodes", "--env-steps", "--test-every", "--test-starts", "--test-max-steps",
               "--test-grip", "--cars", "--traffic-bots", "--demo-laps", "--demo-line",

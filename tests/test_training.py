@@ -20,7 +20,7 @@ from formula_tourney.training import envs as run_envs
 from formula_tourney.training import loop
 from formula_tourney.training.evaluate import _lap_trace, start_positions
 from formula_tourney.training.presets import PRESETS, Preset
-from formula_tourney.training.spec import RunSpec, build_run_spec
+from formula_tourney.training.run_spec import RunSpec, build_run_spec
 
 SCHEDULE = dict(
     episodes=3, max_steps=60, test_every_episodes=2, test_starts=2, test_max_steps=70,

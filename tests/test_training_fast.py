@@ -39,7 +39,7 @@ from formula_tourney.training.collect import (
     split_cars,
 )
 from formula_tourney.training.demos import behaviour_clone, collect_demonstrations
-from formula_tourney.training.spec import RunSpec, build_run_spec
+from formula_tourney.training.run_spec import RunSpec, build_run_spec
 
 
 def _scripted(car: int, obs: np.ndarray) -> np.ndarray:

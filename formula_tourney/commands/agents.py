@@ -20,7 +20,7 @@ from formula_tourney.commands.output import emit, message
 from formula_tourney.errors import UserInputError
 from formula_tourney.lines.kinds import REFERENCE_KINDS
 from formula_tourney.training.presets import PRESETS
-from formula_tourney.training.spec import DemoSettings, RunSpec, Schedule, build_run_spec
+from formula_tourney.training.run_spec import DemoSettings, RunSpec, Schedule, build_run_spec
 
 TRAIN_OPTIONS = [
     *field_options(

@@ -32,7 +32,7 @@ def register(app: typer.Typer) -> None:
         from formula_tourney.bots.baselines import bot_report
         from formula_tourney.sim.catalog import load_track
         from formula_tourney.training.loop import train
-        from formula_tourney.training.spec import build_run_spec
+        from formula_tourney.training.run_spec import build_run_spec
 
         started = time.perf_counter()
         message("compile: the follower on the min-curvature line (lines, speed profile, car)")

@@ -1,6 +1,6 @@
 """Command-line options generated from a pydantic model's fields: one declaration per setting.
 
-A setting that a model owns (a ``training.spec.Schedule`` key, a ``DemoSettings`` key, a
+A setting that a model owns (a ``training.run_spec.Schedule`` key, a ``DemoSettings`` key, a
 ``RunSpec`` field) is declared, described, defaulted and validated there; a command lists the
 model here and gets one typer option per field, so a new field appears in ``--help`` with no
 edit in ``commands/``. The option's name is the field's (``test_starts`` -> ``--test-starts``,

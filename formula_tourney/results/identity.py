@@ -4,7 +4,7 @@ Tests drive their own envs from their own seeds and never feed the learner, so t
 specifications differ only in where, how often or how long they are tested train the same
 agent step for step (``tests/test_claims.py`` checks it on real runs). This module owns that
 list of keys, and works on the plain JSON a job's ``config.json`` holds, so the report can tell
-repeats apart without building a ``training.spec.RunSpec`` (which sits above it).
+repeats apart without building a ``training.run_spec.RunSpec`` (which sits above it).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The env's configuration: one pydantic model that owns every FormulaRacing-v0 key.
 
-The env, the run specification (``training.spec``) and tournament files all validate env keys
+The env, the run specification (``training.run_spec``) and tournament files all validate env keys
 here, so a key's meaning, default and allowed range are written once. Two levels:
 
 - :class:`EnvSettings` holds the knobs a study may change per run (physics, ends, reward terms,

@@ -3,7 +3,7 @@
 Modules, in the order data flows through them (imports go the same way):
 
 - ``spec``: the tournament file's schema and line-accurate errors.
-- ``plan``: parts -> entrants x setups x seeds -> jobs, each with its ``training.spec.RunSpec``;
+- ``plan``: parts -> entrants x setups x seeds -> jobs, each with its ``training.run_spec.RunSpec``;
   ``jobs``: the picklable ``Job``.
 - ``store``: the index (``index.sqlite``); ``outcomes``: a finished folder's metrics;
   ``race_part``/``race_worker``: a race series, parent and worker side.

@@ -2,7 +2,7 @@
 
 The plan makes jobs, the scheduler queues them, an executor ships them to a worker process or a
 Ray task, and ``tourney.runner`` runs them through their kind's object (``tourney.kinds``). A
-training job carries its run specification as JSON (``training.spec.RunSpec.to_json()``), built
+training job carries its run specification as JSON (``training.run_spec.RunSpec.to_json()``), built
 and validated once in the parent; the worker only reads it back. A baseline job carries the bot,
 line, track and laps of its drive; a race job the whole series of a race part (its racing models
 chosen in the parent from the index).

@@ -13,7 +13,7 @@ from typing import Any
 
 from formula_tourney.results.folder import BaselineFolder, CorruptResultError, JobFolder
 from formula_tourney.results.metrics import general_model, model_table, run_metrics
-from formula_tourney.training.spec import RunSpec
+from formula_tourney.training.run_spec import RunSpec
 
 
 def run_spec(job_dir: str | Path) -> RunSpec:

@@ -1,7 +1,7 @@
 """The plan: a validated tournament turned into jobs (entrant x seed x part) and baseline drives.
 
 Every training job's run specification is built here, in the parent, by
-``training.spec.build_run_spec`` (the one function ``tune`` and the ``train`` command call too):
+``training.run_spec.build_run_spec`` (the one function ``tune`` and the ``train`` command call too):
 a part's settings and ``[defaults]`` give the schedule, device, threads and env overrides, its
 setup the reference line and LAC, the variant its agent configuration, the tournament's
 ``seed_base`` the seed. :meth:`Planner.validate` builds the spec of every job that can exist,
@@ -33,7 +33,7 @@ from formula_tourney.tourney.spec import (
     entrant_name,
     error_at,
 )
-from formula_tourney.training.spec import SCHEDULE_KEYS, RunSpec, build_run_spec
+from formula_tourney.training.run_spec import SCHEDULE_KEYS, RunSpec, build_run_spec
 
 
 @dataclass

@@ -7,7 +7,7 @@ off, episodes, seeds, test schedule), promotion rules, baselines to race and the
 reference in ``docs/tourney.md``, ``--help`` and error messages come from one place.
 
 Job settings are not redefined here: a part's schedule keys, device and threads take their type,
-range and description from ``training.spec`` (``Schedule``, ``RunSpec``), its env overrides are
+range and description from ``training.run_spec`` (``Schedule``, ``RunSpec``), its env overrides are
 ``sim.config.EnvSettings``, so a bad value is an error at its line before anything is planned.
 
 Errors are ``UserInputError`` naming ``file:line: key`` and the allowed values. ``tomllib`` keeps
@@ -37,7 +37,7 @@ from formula_tourney.race.settings import RaceSettings
 from formula_tourney.safeio import check_name, read_user_text
 from formula_tourney.sim.config import RUN_OWNED_KEYS, EnvSettings
 from formula_tourney.training.presets import PRESETS
-from formula_tourney.training.spec import RUN_OWNED_HINTS, DemoSettings, RunSpec, Schedule
+from formula_tourney.training.run_spec import RUN_OWNED_HINTS, DemoSettings, RunSpec, Schedule
 
 MAX_SPEC_BYTES = 1024 * 1024
 """Largest tournament or tune file read (1 MiB; study2.toml is under 4 KiB). A bigger file is
@@ -66,7 +66,7 @@ class _Strict(BaseModel):
 
 def _unset_or(model: type[BaseModel], name: str) -> Any:
     """The type of ``model.<name>`` made optional (None = unset here), keeping the owner's
-    constraints and description, so a range is written once (in ``training.spec``)."""
+    constraints and description, so a range is written once (in ``training.run_spec``)."""
     info = model.model_fields[name]
     inner = Annotated[(info.annotation, *info.metadata)] if info.metadata else info.annotation
     return Annotated[inner | None, Field(description=info.description)]
@@ -177,7 +177,7 @@ class Selection(_Strict):
 
 class JobSettings(_Strict):
     """Training settings of every job in a part; unset values fall back to [defaults], then to
-    the run specification's own defaults (``training.spec.Schedule`` and ``RunSpec``)."""
+    the run specification's own defaults (``training.run_spec.Schedule`` and ``RunSpec``)."""
 
     seeds: int | None = Field(None, ge=1, le=1000, description="Independent runs per entrant.")
     episodes: _unset_or(Schedule, "episodes") = None

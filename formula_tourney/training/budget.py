@@ -26,7 +26,7 @@ from formula_tourney.bots.line_offsets import reference_offsets
 from formula_tourney.sim.car_params import CarParams
 from formula_tourney.sim.catalog import load_track
 from formula_tourney.training.envs import RunEnvs
-from formula_tourney.training.spec import RunSpec
+from formula_tourney.training.run_spec import RunSpec
 
 BEST_BOT_LINE = "mincurv"
 """The line of the best bot: the follower is fastest on the minimum-curvature line."""

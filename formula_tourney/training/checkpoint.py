@@ -13,7 +13,7 @@ from typing import Any
 from formula_tourney.agents.checkpoints import load_checkpoint
 from formula_tourney.agents.core import Agent
 from formula_tourney.errors import UserInputError
-from formula_tourney.training.spec import RunSpec
+from formula_tourney.training.run_spec import RunSpec
 
 
 def load_run_checkpoint(path: str | Path, device: str = "cpu") -> tuple[Agent, RunSpec, dict]:

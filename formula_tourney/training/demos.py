@@ -30,7 +30,7 @@ from formula_tourney.bots.line_offsets import reference_offsets
 from formula_tourney.sim.env import DEFAULT_START_BEFORE_LINE_M
 from formula_tourney.sim.reward import RewardRule
 from formula_tourney.training.envs import RunEnvs
-from formula_tourney.training.spec import DEMO_BOT, RunSpec
+from formula_tourney.training.run_spec import DEMO_BOT, RunSpec
 
 
 @dataclass

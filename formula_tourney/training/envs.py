@@ -22,7 +22,7 @@ from formula_tourney.lines.limit import reference_limit_s
 from formula_tourney.sim.catalog import load_track
 from formula_tourney.sim.config import EnvConfig
 from formula_tourney.sim.track import Track
-from formula_tourney.training.spec import RunSpec
+from formula_tourney.training.run_spec import RunSpec
 
 ENV_ID = "FormulaRacing-v0"
 

@@ -1,6 +1,6 @@
 """One training run: env + DDPG variant + periodic greedy tests, written as a job folder.
 
-The run is fully described by its :class:`~formula_tourney.training.spec.RunSpec`, built and
+The run is fully described by its :class:`~formula_tourney.training.run_spec.RunSpec`, built and
 validated by the caller; nothing here re-defaults or re-checks a setting. Files go through
 ``results.folder.JobFolder`` (the one owner of the layout): ``config.json`` first, tables and
 checkpoints as they come, ``summary.json`` last (its presence means finished).
@@ -51,7 +51,7 @@ from formula_tourney.training.evaluate import (
     start_positions,
     tests_row,
 )
-from formula_tourney.training.spec import RunSpec
+from formula_tourney.training.run_spec import RunSpec
 
 Progress = Callable[[dict[str, Any]], Any]
 

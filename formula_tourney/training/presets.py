@@ -44,7 +44,7 @@ class Preset(BaseModel):
         "the preset was measured with; the user's env overrides win key by key.",
     )
     demos: dict[str, Any] | None = Field(
-        None, description="Demonstration settings (keys of training.spec.DemoSettings)."
+        None, description="Demonstration settings (keys of training.run_spec.DemoSettings)."
     )
 
     @field_validator("env")

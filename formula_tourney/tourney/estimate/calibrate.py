@@ -1,6 +1,6 @@
 """Measure, on this machine and now, what one job's pieces cost: the rates a cost estimate uses.
 
-For one run specification (built by the planner through ``training.spec.build_run_spec``, as
+For one run specification (built by the planner through ``training.run_spec.build_run_spec``, as
 the job would get it) this builds the job's real env (``training.envs.RunEnvs``), agent and
 replay buffer exactly as ``training.loop.train`` does, then times, for about ``seconds``:
 
@@ -38,7 +38,7 @@ from formula_tourney.sim.reward import RewardRule
 from formula_tourney.training.collect import SingleCarCollector
 from formula_tourney.training.envs import RunEnvs
 from formula_tourney.training.evaluate import run_test_episode, start_positions
-from formula_tourney.training.spec import RunSpec
+from formula_tourney.training.run_spec import RunSpec
 
 
 @dataclass(frozen=True)
@@ -93,7 +93,7 @@ _WORKER_START = """
 import json, sys, tempfile, time
 t0 = time.perf_counter()
 from formula_tourney.training.loop import train
-from formula_tourney.training.spec import RunSpec
+from formula_tourney.training.run_spec import RunSpec
 spec = RunSpec.from_json(json.loads(sys.stdin.read()), "estimate")
 t1 = time.perf_counter()
 jobs = []

@@ -36,7 +36,7 @@ from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 from formula_tourney.tourney.estimate.calibrate import Rates, WorkerStart
-from formula_tourney.training.spec import RunSpec
+from formula_tourney.training.run_spec import RunSpec
 
 RAY_INIT_S = 13.5
 """``ray.init`` measured at 12-15 s on this kind of machine."""

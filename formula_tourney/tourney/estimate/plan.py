@@ -25,7 +25,7 @@ from formula_tourney.tourney.estimate.model import (
     rate_key,
 )
 from formula_tourney.tourney.plan import PlannedPart, Planner, possible_variants, resolve_variant
-from formula_tourney.training.spec import RunSpec
+from formula_tourney.training.run_spec import RunSpec
 
 Report = Callable[[str], None]
 

@@ -18,7 +18,7 @@ from formula_tourney.tourney.kinds.base import JobKind, Progress, fresh_dir, num
 from formula_tourney.tourney.outcomes import job_metrics
 from formula_tourney.tourney.plan import PlannedPart, Planner, possible_variants
 from formula_tourney.tourney.store import Store
-from formula_tourney.training.spec import RunSpec
+from formula_tourney.training.run_spec import RunSpec
 
 STATUSES = ("done", "failed", "pending", "running")
 

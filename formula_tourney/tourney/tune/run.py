@@ -50,7 +50,7 @@ from formula_tourney.tourney.tune.study import (
     worker_tag,
 )
 from formula_tourney.tourney.tune.worker import tune_worker
-from formula_tourney.training.spec import RunSpec
+from formula_tourney.training.run_spec import RunSpec
 
 Report = Callable[[str], None]
 """Receives one line of progress (the CLI prints it on stderr)."""

@@ -2,7 +2,7 @@
 
 The search space's keys are the variant's hyperparameters (``agents.variants.AgentConfig``);
 ``[train]`` takes the same job settings as a tournament part. A trial's run specification is
-built by ``training.spec.build_run_spec`` through :func:`trial_spec`, the same path the
+built by ``training.run_spec.build_run_spec`` through :func:`trial_spec`, the same path the
 tournament plan takes; :func:`check_tune` builds the specs of the search space's corners in the
 parent, so an impossible value fails before a study is created. ``[objective]`` picks what a
 trial scores: its best clean test lap (the default), or the CPU-seconds it takes to a milestone
@@ -28,7 +28,7 @@ from formula_tourney.tourney.spec import (
     parse_toml,
     read_spec_text,
 )
-from formula_tourney.training.spec import RunSpec, build_run_spec
+from formula_tourney.training.run_spec import RunSpec, build_run_spec
 
 
 class SearchParam(BaseModel):
