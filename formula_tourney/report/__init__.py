@@ -5,6 +5,6 @@
 model of ``table_model``, as ``grip_table``, ``competence_table`` (time to competence, from
 ``results.competence``), ``cost`` and ``race_table`` build theirs; ``renderers`` (terminal,
 Markdown, LaTeX) and ``html`` write them; ``stats`` holds the confidence intervals; ``plots``
-draws the figures; ``claims`` checks the declared claims; ``build`` ties them together for the CLI. Nothing here trains, drives or
-imports the tournament runner.
+draws the figures; ``claims`` checks the declared claims; ``build`` ties them together for the
+CLI. Nothing here trains, drives or imports the tournament runner.
 """
