@@ -21,6 +21,8 @@ from report_fixtures import build_tournament  # noqa: E402
 
 from formula_tourney.report import plots  # noqa: E402
 from formula_tourney.report.build import build_report  # noqa: E402
+from formula_tourney.report.claims.figures import make_claim_figures  # noqa: E402
+from formula_tourney.report.html import figure_caption  # noqa: E402
 from formula_tourney.report.load import load_tournament  # noqa: E402
 from formula_tourney.report.paper_tables import Context, build_tables  # noqa: E402
 from formula_tourney.report.race_figures import plot_race  # noqa: E402
@@ -74,13 +76,14 @@ def text_problems(fig: Any) -> list[str]:
 
 
 @pytest.fixture()
-def checked(monkeypatch: pytest.MonkeyPatch) -> dict[str, list[str]]:
-    """Check every figure any report module saves, before it is written: name -> problems."""
-    found: dict[str, list[str]] = {}
+def checked(monkeypatch: pytest.MonkeyPatch) -> dict[str, tuple[Any, list[str]]]:
+    """Check every figure any report module saves, before it is written:
+    name -> (figure, problems)."""
+    found: dict[str, tuple[Any, list[str]]] = {}
     original = plots.save_figure
 
     def check_then_save(fig: Any, out_base: Path) -> list[Path]:
-        found[Path(out_base).name] = text_problems(fig)
+        found[Path(out_base).name] = (fig, text_problems(fig))
         return original(fig, out_base)
 
     for name, module in list(sys.modules.items()):
@@ -105,7 +108,7 @@ def _race_doc() -> dict[str, Any]:
 
 
 def test_every_figure_keeps_its_text_on_the_canvas_and_apart(
-        cup: Path, tmp_path: Path, checked: dict[str, list[str]]) -> None:
+        cup: Path, tmp_path: Path, checked: dict[str, tuple[Any, list[str]]]) -> None:
     report = build_report(str(cup), out_dir=tmp_path / "report", formats=("html",),
                           figures=True)
     trace = pd.read_parquet(next((cup / "part1").glob("win4/seed-0/traces/oval.parquet")))
@@ -119,5 +122,80 @@ def test_every_figure_keeps_its_text_on_the_canvas_and_apart(
     assert {"learning", "generalisation", "trace", "line", "delta", "ablation", "claim",
             "profile", "race"} <= kinds, kinds
     assert set(report.figures) <= set(checked)
-    bad = {name: p for name, p in checked.items() if p}
+    bad = {name: p for name, (_, p) in checked.items() if p}
     assert not bad, "\n".join(f"{name}: {p}" for name, ps in bad.items() for p in ps)
+
+
+def _legend_texts(ax: Any) -> list[str]:
+    legend = ax.get_legend()
+    return [t.get_text().replace("\n", " ") for t in legend.get_texts()] if legend else []
+
+
+def test_learning_curves_mark_every_clean_test_and_the_tables_blt(
+        cup: Path, tmp_path: Path, checked: dict[str, tuple[Any, list[str]]]) -> None:
+    ctx = Context.build(load_tournament(cup))
+    table1 = next(t for t in build_tables(ctx) if t.key == "table1")
+    plots.make_figures(ctx, [table1], tmp_path)
+    fig, _ = checked["learning-part1"]
+    _, ax_laps = fig.axes
+    own = ctx.models.loc[(ctx.models["part"] == "part1") & ctx.models["clean_lap_s"].notna()]
+    # every clean test of every seed is a marker (win1 seed-2's lone clean pair included)
+    points = [(float(x), float(y)) for line in ax_laps.get_lines() if line.get_marker() == "o"
+              for x, y in zip(line.get_xdata(), line.get_ydata(), strict=True)
+              if np.isfinite(y)]
+    assert sorted(points) == sorted(zip(own["episode"].astype(float), own["clean_lap_s"],
+                                        strict=True))
+    # the star and its legend show the table's bLT: win1's clean best is 27.1, not 26.5
+    labels = " | ".join(_legend_texts(ax_laps))
+    for rec in (r for r in table1.records if r["group"] == "part1: oval MOT"):
+        if math.isfinite(rec["bLT"]):
+            assert f"bLT {rec['bLT']:.2f} s" in labels
+    assert "win1: bLT 27.10 s (n=3)" in labels
+    stars = [float(line.get_ydata()[0]) for line in ax_laps.get_lines()
+             if line.get_marker() == "*"]
+    assert min(stars) == pytest.approx(min(r["bLT"] for r in table1.records
+                                           if r["group"] == "part1: oval MOT"
+                                           and math.isfinite(r["bLT"])), abs=1e-9)
+
+
+def test_a_seed_that_stopped_early_is_drawn_as_stopped(
+        tmp_path: Path, checked: dict[str, tuple[Any, list[str]]]) -> None:
+    episodes = pd.DataFrame({
+        "job_id": ["p/e/seed-0"] * 300 + ["p/e/seed-1"] * 190, "entrant": "e",
+        "episode": [*range(1, 301), *range(1, 191)],
+        "reward": [*np.full(300, 100.0), *np.full(190, 300.0)],
+    })
+    plots.plot_learning_curves(episodes, pd.DataFrame(columns=["entrant", "job_id", "episode",
+                                                                "clean_lap_s"]),
+                               "stopped", tmp_path / "learning-stopped", smooth=1)
+    fig, problems = checked["learning-stopped"]
+    assert not problems
+    ax_reward = fig.axes[0]
+    mean = next(line for line in ax_reward.get_lines() if line.get_label().startswith("e ("))
+    y = np.asarray(mean.get_ydata(), dtype=float)
+    assert y[0] == pytest.approx(200.0) and y[189] == pytest.approx(200.0)
+    # after seed-1's last episode the mean is seed-0's alone: never 0, never a gap
+    assert np.all(y[190:] == pytest.approx(100.0))
+    assert "n=2, n=1 from ep 191" in mean.get_label().replace("\n", " ")
+    stops = [line for line in ax_reward.get_lines() if line.get_marker() == "x"
+             and len(line.get_xdata())]
+    assert [(float(s.get_xdata()[0]), float(s.get_ydata()[0])) for s in stops] == [(190.0,
+                                                                                   300.0)]
+    assert "a seed's last episode" in _legend_texts(ax_reward)
+
+
+def test_html_captions_say_what_a_figure_shows() -> None:
+    assert figure_caption("learning-p1-oval").startswith("Learning curves, p1-oval: training")
+    assert "A \u2212 B" in figure_caption("delta-p2-technical-rc-lac")
+    assert figure_caption("p3-race-race-0-gaps") == (
+        "Race 1 of p3-race: each car's gap to the leader at the end of every lap.")
+    assert "bootstrap" in figure_caption("profile")
+
+
+def test_profile_legend_names_its_bands(
+        cup: Path, tmp_path: Path, checked: dict[str, tuple[Any, list[str]]]) -> None:
+    ctx = Context.build(load_tournament(cup))
+    make_claim_figures(ctx, [], tmp_path)
+    fig, problems = checked["profile"]
+    assert not problems
+    assert "95% bootstrap CI (shaded)" in _legend_texts(fig.axes[0])

@@ -56,10 +56,48 @@ def table_html(table: ReportTable) -> str:
     return "\n".join(parts)
 
 
+CAPTIONS: dict[str, str] = {
+    "learning": "Learning curves, {rest}: training reward (moving average; mean and 95% band "
+                "over seeds, n where it changes, x where a seed stopped) and every clean test "
+                "lap of each seed; a star marks each entrant's best lap, the tables' bLT.",
+    "generalisation": "Generalisation, {rest}: clean lap on each test track against training "
+                      "episode, one line per run; the red line marks the general model.",
+    "trace": "Actions on the fastest lap, {rest}: steer, throttle, brake and speed against "
+             "distance.",
+    "line": "Paths driven, {rest}: the fastest lap and its rival on the track map, coloured by "
+            "speed; the title says which reference line each followed.",
+    "delta": "Lap against lap, {rest}: both speeds against distance, and the running time "
+             "difference A \u2212 B (> 0 where A is behind).",
+    "ablation": "Ablation, {rest}: training reward with the setting off (green) and on (red), "
+                "mean and 95% band over seeds.",
+    "claim": "Evidence for claim {rest}: the data behind its verdict.",
+    "profile": "Performance profile: fraction of runs whose best clean lap over the reference "
+               "limit is at most tau, per variant and over all runs, with 95% bootstrap bands.",
+}
+"""What each figure kind shows, keyed by the first word of the figure's name (``plots``,
+``claims.figures`` and ``race_figures`` name their files ``<kind>-<what>``)."""
+
+
+def figure_caption(name: str) -> str:
+    """A sentence saying what the figure ``name`` shows and of what (its part, column or
+    claim), instead of its file name."""
+    if "-race-" in name and name.endswith(("-positions", "-gaps")):
+        part, _, rest = name.rpartition("-race-")
+        k, _, what = rest.partition("-")
+        shown = "position" if what == "positions" else "gap to the leader"
+        number = int(k) + 1 if k.isdigit() else k
+        return f"Race {number} of {part}: each car's {shown} at the end of every lap."
+    kind, _, rest = name.partition("-")
+    template = CAPTIONS.get(kind)
+    return template.format(rest=rest) if template else name
+
+
 def figure_html(name: str, png: Path) -> str:
+    """One figure, its PNG inlined, with its caption."""
     data = base64.b64encode(Path(png).read_bytes()).decode("ascii")
-    return (f"<figure><img alt='{html.escape(name)}' src='data:image/png;base64,{data}'>"
-            f"<figcaption>{html.escape(name)}</figcaption></figure>")
+    caption = figure_caption(name)
+    return (f"<figure><img alt='{html.escape(caption)}' src='data:image/png;base64,{data}'>"
+            f"<figcaption>{html.escape(caption)}</figcaption></figure>")
 
 
 def render_page(title: str, tables: list[ReportTable], figures: dict[str, list[Path]],
