@@ -457,10 +457,11 @@ def one_lap(trace: pd.DataFrame, lap_times_s: list[float] | None = None,
     return frame
 
 
-def bot_trace(data: Any, part: str, track: str) -> tuple[str, str, pd.DataFrame] | None:
-    """(label, line it followed, lap) of the follower bot on ``track`` as the store keeps it
+def bot_trace(data: Any, part: str, track: str) -> tuple[str, pd.DataFrame] | None:
+    """The follower bot's lap on ``track`` as the store keeps it
     (``<part>/_baselines/<bot>-<ref>-<track>/trace.parquet``, the ``baselines.path`` column), or
-    None where no baseline drive stored one."""
+    None where no baseline drive stored one. The lap's ``attrs["reference"]`` names the line the
+    bot followed (for the line figure's title)."""
     rows = data.baselines
     if rows.empty:
         return None
@@ -476,7 +477,9 @@ def bot_trace(data: Any, part: str, track: str) -> tuple[str, str, pd.DataFrame]
             data.problems.append(f"baseline trace {row['path']}: missing columns")
             continue
         label, _ = bot_row_label(rows, str(row["bot"]), str(row["reference"]))
-        return label, str(row["reference"]), one_lap(trace)
+        lap = one_lap(trace)
+        lap.attrs["reference"] = str(row["reference"])
+        return label, lap
     return None
 
 
@@ -581,7 +584,7 @@ def _rival(data: Any, table1: ReportTable,
     if bot is not None:
         row = next((r for r in table1.rows if r["kind"] == "bot" and r["label"] == bot[0]), None)
         lap_s = row["values"].get((leader["group"], "bLT"), math.nan) if row else math.nan
-        return bot[0], bot[2], float(lap_s), bot[1]
+        return bot[0], bot[1], float(lap_s), str(bot[1].attrs["reference"])
     others = [r for r in table1.records if r["group"] == leader["group"] and r is not leader
               and r.get("status") == "ok" and r.get("best_job")]
     for rec in sorted(others, key=lambda r: r["bLT"]):
