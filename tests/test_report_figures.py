@@ -174,8 +174,11 @@ def test_a_seed_that_stopped_early_is_drawn_as_stopped(
     mean = next(line for line in ax_reward.get_lines() if line.get_label().startswith("e ("))
     y = np.asarray(mean.get_ydata(), dtype=float)
     assert y[0] == pytest.approx(200.0) and y[189] == pytest.approx(200.0)
-    # after seed-1's last episode the mean is seed-0's alone: never 0, never a gap
-    assert np.all(y[190:] == pytest.approx(100.0))
+    assert np.isnan(y[190:]).all()  # the mean over both seeds ends with seed-1
+    # after seed-1's last episode the mean is seed-0's alone, dashed: never 0, never a gap
+    dashed = next(line for line in ax_reward.get_lines() if line.get_linestyle() == "--")
+    tail = np.asarray(dashed.get_ydata(), dtype=float)
+    assert np.all(tail[190:] == pytest.approx(100.0)) and np.isnan(tail[:189]).all()
     assert "n=2, n=1 from ep 191" in mean.get_label().replace("\n", " ")
     stops = [line for line in ax_reward.get_lines() if line.get_marker() == "x"
              and len(line.get_xdata())]

@@ -122,10 +122,21 @@ def n_label(changes: list[tuple[float, int]]) -> str:
 
 
 def _band_plot(ax: Any, x: np.ndarray, matrix: np.ndarray, label: str, colour: Any) -> None:
-    """Mean over seeds with its 95% band; the legend gives n, and where it changes."""
+    """Mean over seeds with its 95% band; the legend gives n, and where it changes. Where fewer
+    seeds than the most have a value (one stopped earlier) the mean is dashed: a jump there is
+    the stopped seed leaving the mean, not the others' learning."""
     mean, low, high = stats.band(matrix)
     label = wrap(f"{label} ({n_label(seed_counts(x, matrix))})", 6.5, 8)
-    ax.plot(x, mean, color=colour, label=label, lw=1.4)
+    counts = np.isfinite(matrix).sum(axis=0)
+    full = counts == counts.max() if counts.size else counts.astype(bool)
+    ax.plot(x, np.where(full, mean, np.nan), color=colour, label=label, lw=1.4)
+    if not full.all():
+        # dashed over the stretches with fewer seeds, joined to the solid line at each edge
+        short = ~full
+        edge = short.copy()
+        edge[1:] |= short[:-1]
+        edge[:-1] |= short[1:]
+        ax.plot(x, np.where(edge, mean, np.nan), color=colour, lw=1.2, ls="--")
     if matrix.shape[0] > 1:
         ax.fill_between(x, low, high, color=colour, alpha=0.2, lw=0)
 
