@@ -5,6 +5,7 @@ drawn as stopped, and the HTML captions say what a figure shows."""
 from __future__ import annotations
 
 import math
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -187,12 +188,18 @@ def test_a_seed_that_stopped_early_is_drawn_as_stopped(
     assert "a seed's last episode" in _legend_texts(ax_reward)
 
 
-def test_html_captions_say_what_a_figure_shows() -> None:
-    assert figure_caption("learning-p1-oval").startswith("Learning curves, p1-oval: training")
-    assert "A \u2212 B" in figure_caption("delta-p2-technical-rc-lac")
-    assert figure_caption("p3-race-race-0-gaps") == (
-        "Race 1 of p3-race: each car's gap to the leader at the end of every lap.")
-    assert "bootstrap" in figure_caption("profile")
+def test_html_captions_say_what_a_figure_shows(cup: Path, tmp_path: Path) -> None:
+    build_report(str(cup), out_dir=tmp_path, formats=("html",), figures=True, part="part1")
+    page = (tmp_path / "report.html").read_text(encoding="utf-8")
+    captions = re.findall(r"<figcaption>(.*?)</figcaption>", page)
+    assert "<figcaption>learning-part1</figcaption>" not in page
+    assert any(c.startswith("Learning curves, part1. Training reward") for c in captions)
+    delta = next(c for c in captions if "lap vs lap" in c)
+    assert delta.startswith("part1: oval MOT: lap vs lap. Both laps") and "A \u2212 B" in delta
+    assert figure_caption("p3-race-race-0-gaps", "Gap to the leader: oval, 3 laps, seed 0") == (
+        "Gap to the leader: oval, 3 laps, seed 0. Each car's gap to the leader at the end of "
+        "every lap.")
+    assert figure_caption("odd-figure") == "odd-figure"
 
 
 def test_profile_legend_names_its_bands(

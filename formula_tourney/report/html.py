@@ -11,6 +11,8 @@ import html
 from pathlib import Path
 from typing import Any
 
+from PIL import Image
+
 from formula_tourney.report.table_model import DASH, ReportTable
 
 _CSS = """
@@ -57,45 +59,62 @@ def table_html(table: ReportTable) -> str:
 
 
 CAPTIONS: dict[str, str] = {
-    "learning": "Learning curves, {rest}: training reward (moving average; mean and 95% band "
-                "over seeds, n where it changes, x where a seed stopped) and every clean test "
-                "lap of each seed; a star marks each entrant's best lap, the tables' bLT.",
-    "generalisation": "Generalisation, {rest}: clean lap on each test track against training "
-                      "episode, one line per run; the red line marks the general model.",
-    "trace": "Actions on the fastest lap, {rest}: steer, throttle, brake and speed against "
-             "distance.",
-    "line": "Paths driven, {rest}: the fastest lap and its rival on the track map, coloured by "
-            "speed; the title says which reference line each followed.",
-    "delta": "Lap against lap, {rest}: both speeds against distance, and the running time "
-             "difference A \u2212 B (> 0 where A is behind).",
-    "ablation": "Ablation, {rest}: training reward with the setting off (green) and on (red), "
-                "mean and 95% band over seeds.",
-    "claim": "Evidence for claim {rest}: the data behind its verdict.",
-    "profile": "Performance profile: fraction of runs whose best clean lap over the reference "
-               "limit is at most tau, per variant and over all runs, with 95% bootstrap bands.",
+    "learning": "Training reward (moving average; mean and 95% band over seeds, dashed where a "
+                "seed had stopped, x at its last episode, n in the legend where it changes) and "
+                "every clean test lap of each seed; a star marks each entrant's best lap, the "
+                "tables' bLT.",
+    "generalisation": "Clean lap on each test track against training episode, one line per "
+                      "run; the red line marks the general model.",
+    "trace": "Steer, throttle, brake and speed against distance on the fastest lap.",
+    "line": "The fastest lap and its rival on the track map, coloured by speed; the title says "
+            "which reference line each followed.",
+    "delta": "Both laps' speeds against distance, and the running time difference A \u2212 B "
+             "(> 0 where A is behind).",
+    "ablation": "Training reward with the setting off (green) and on (red), mean and 95% band "
+                "over seeds.",
+    "claim": "The data behind the claim's verdict.",
+    "profile": "Fraction of runs whose best clean lap over the reference limit is at most tau, "
+               "per variant and over all runs, with 95% bootstrap bands.",
+    "race": "Each car's place at the end of every lap.",
+    "race-gaps": "Each car's gap to the leader at the end of every lap.",
 }
 """What each figure kind shows, keyed by the first word of the figure's name (``plots``,
-``claims.figures`` and ``race_figures`` name their files ``<kind>-<what>``)."""
+``claims.figures`` and ``race_figures`` name their files ``<kind>-<what>``; a race's are
+``<part>-race-<k>-positions|gaps``)."""
 
 
-def figure_caption(name: str) -> str:
-    """A sentence saying what the figure ``name`` shows and of what (its part, column or
-    claim), instead of its file name."""
-    if "-race-" in name and name.endswith(("-positions", "-gaps")):
-        part, _, rest = name.rpartition("-race-")
-        k, _, what = rest.partition("-")
-        shown = "position" if what == "positions" else "gap to the leader"
-        number = int(k) + 1 if k.isdigit() else k
-        return f"Race {number} of {part}: each car's {shown} at the end of every lap."
-    kind, _, rest = name.partition("-")
-    template = CAPTIONS.get(kind)
-    return template.format(rest=rest) if template else name
+def _kind(name: str) -> str:
+    if "-race-" in name and name.endswith("-gaps"):
+        return "race-gaps"
+    if "-race-" in name and name.endswith("-positions"):
+        return "race"
+    return name.partition("-")[0]
+
+
+def png_title(png: Path) -> str:
+    """The ``Title`` a figure's PNG carries (``plots.save_figure`` writes the figure's title
+    there); empty when it has none."""
+    try:
+        with Image.open(png) as image:
+            return str(image.info.get("Title", ""))
+    except OSError:
+        return ""
+
+
+def figure_caption(name: str, title: str = "") -> str:
+    """The figure's title (what and of which part, column or claim) and a sentence saying what
+    it shows; the file name only for a figure kind this module does not know and no title."""
+    what = CAPTIONS.get(_kind(name), "")
+    head = title or name
+    if not what:
+        return head
+    return f"{head.rstrip('.')}. {what}"
 
 
 def figure_html(name: str, png: Path) -> str:
     """One figure, its PNG inlined, with its caption."""
     data = base64.b64encode(Path(png).read_bytes()).decode("ascii")
-    caption = figure_caption(name)
+    caption = figure_caption(name, png_title(Path(png)))
     return (f"<figure><img alt='{html.escape(caption)}' src='data:image/png;base64,{data}'>"
             f"<figcaption>{html.escape(caption)}</figcaption></figure>")
 

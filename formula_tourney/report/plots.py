@@ -66,14 +66,26 @@ def slug(text: str) -> str:
     return out or "figure"
 
 
+def figure_title(fig: Any) -> str:
+    """The figure's title on one line: its suptitle, else its first panel's title."""
+    sup = getattr(fig, "_suptitle", None)
+    text = sup.get_text() if sup is not None else ""
+    if not text and fig.axes:
+        text = fig.axes[0].get_title()
+    return " ".join(text.split())
+
+
 def save_figure(fig: Any, out_base: Path) -> list[Path]:
-    """Write ``out_base.png`` and ``out_base.pdf`` atomically and close the figure."""
+    """Write ``out_base.png`` and ``out_base.pdf`` atomically and close the figure. Both carry
+    the figure's title as their ``Title`` metadata, which the HTML page's caption reads."""
     plt = _pyplot()
     paths = []
+    title = figure_title(fig)
     try:
         for fmt in FORMATS:
             buf = io.BytesIO()
-            fig.savefig(buf, format=fmt, dpi=DPI, bbox_inches="tight")
+            fig.savefig(buf, format=fmt, dpi=DPI, bbox_inches="tight",
+                        metadata={"Title": title} if title else None)
             paths.append(atomic_write_bytes(out_base.with_suffix(f".{fmt}"), buf.getvalue()))
     finally:
         plt.close(fig)
