@@ -20,6 +20,7 @@ from formula_tourney.commands import (
     lines,
     race,
     report,
+    status,
     tourney,
     tracks,
 )
@@ -60,7 +61,7 @@ def _root(
     """Options of the command itself; the work is in the subcommands."""
 
 
-for module in (demo, tracks, lines, agents, tourney, report, race, kernel_cache):
+for module in (demo, tracks, lines, agents, tourney, status, report, race, kernel_cache):
     module.register(app)
 
 

@@ -11,6 +11,8 @@ import html
 from pathlib import Path
 from typing import Any
 
+from PIL import Image
+
 from formula_tourney.report.table_model import DASH, ReportTable
 
 _CSS = """
@@ -56,10 +58,65 @@ def table_html(table: ReportTable) -> str:
     return "\n".join(parts)
 
 
+CAPTIONS: dict[str, str] = {
+    "learning": "Training reward (moving average; mean and 95% band over seeds, dashed where a "
+                "seed had stopped, x at its last episode, n in the legend where it changes) and "
+                "every clean test lap of each seed; a star marks each entrant's best lap, the "
+                "tables' bLT.",
+    "generalisation": "Clean lap on each test track against training episode, one line per "
+                      "run; the red line marks the general model.",
+    "trace": "Steer, throttle, brake and speed against distance on the fastest lap.",
+    "line": "The fastest lap and its rival on the track map, coloured by speed; the title says "
+            "which reference line each followed.",
+    "delta": "Both laps' speeds against distance, and the running time difference A \u2212 B "
+             "(> 0 where A is behind).",
+    "ablation": "Training reward with the setting off (green) and on (red), mean and 95% band "
+                "over seeds.",
+    "claim": "The data behind the claim's verdict.",
+    "profile": "Fraction of runs whose best clean lap over the reference limit is at most tau, "
+               "per variant and over all runs, with 95% bootstrap bands.",
+    "race": "Each car's place at the end of every lap.",
+    "race-gaps": "Each car's gap to the leader at the end of every lap.",
+}
+"""What each figure kind shows, keyed by the first word of the figure's name (``plots``,
+``claims.figures`` and ``race_figures`` name their files ``<kind>-<what>``; a race's are
+``<part>-race-<k>-positions|gaps``)."""
+
+
+def _kind(name: str) -> str:
+    if "-race-" in name and name.endswith("-gaps"):
+        return "race-gaps"
+    if "-race-" in name and name.endswith("-positions"):
+        return "race"
+    return name.partition("-")[0]
+
+
+def png_title(png: Path) -> str:
+    """The ``Title`` a figure's PNG carries (``plots.save_figure`` writes the figure's title
+    there); empty when it has none."""
+    try:
+        with Image.open(png) as image:
+            return str(image.info.get("Title", ""))
+    except OSError:
+        return ""
+
+
+def figure_caption(name: str, title: str = "") -> str:
+    """The figure's title (what and of which part, column or claim) and a sentence saying what
+    it shows; the file name only for a figure kind this module does not know and no title."""
+    what = CAPTIONS.get(_kind(name), "")
+    head = title or name
+    if not what:
+        return head
+    return f"{head.rstrip('.')}. {what}"
+
+
 def figure_html(name: str, png: Path) -> str:
+    """One figure, its PNG inlined, with its caption."""
     data = base64.b64encode(Path(png).read_bytes()).decode("ascii")
-    return (f"<figure><img alt='{html.escape(name)}' src='data:image/png;base64,{data}'>"
-            f"<figcaption>{html.escape(name)}</figcaption></figure>")
+    caption = figure_caption(name, png_title(Path(png)))
+    return (f"<figure><img alt='{html.escape(caption)}' src='data:image/png;base64,{data}'>"
+            f"<figcaption>{html.escape(caption)}</figcaption></figure>")
 
 
 def render_page(title: str, tables: list[ReportTable], figures: dict[str, list[Path]],

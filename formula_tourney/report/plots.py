@@ -12,6 +12,7 @@ from __future__ import annotations
 import io
 import math
 import re
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -19,14 +20,19 @@ import numpy as np
 import pandas as pd
 
 from formula_tourney.errors import UserInputError
+from formula_tourney.lines.kinds import line_label
 from formula_tourney.report import stats
 from formula_tourney.report.paper_tables import Context, bot_row_label
 from formula_tourney.report.table_model import ReportTable
+from formula_tourney.results import metrics
 from formula_tourney.safeio import atomic_write_bytes
 from formula_tourney.sim.catalog import load_track
 
 FORMATS = ("png", "pdf")
 DPI = 120
+CHARS_PER_INCH = {7: 15.0, 8: 13.0, 9: 11.5, 10: 10.5, 12: 8.5}
+"""About how many characters of DejaVu Sans at a font size (pt) fit one inch: the width a title
+or legend label is wrapped at so that it stays inside its panel."""
 # Paper colours: Figure 4 (generalisation) blue/brown/green per track; Figure 6 green = normal
 # end-of-episode target, red = adopted target.
 TRACK_COLOURS = ["tab:blue", "tab:brown", "tab:green", "tab:purple", "tab:orange", "tab:cyan"]
@@ -41,20 +47,45 @@ def _pyplot():
     return plt
 
 
+def subplots(*args: Any, **kwargs: Any) -> tuple[Any, Any]:
+    """``plt.subplots`` with matplotlib's constrained layout: panels, their tick labels, axis
+    labels, legends and colorbars are placed so that none overlaps another or leaves the canvas
+    (``tests/test_report_figures.py`` checks every text of every figure)."""
+    return _pyplot().subplots(*args, layout="constrained", **kwargs)
+
+
+def wrap(text: str, width_in: float, fontsize: int = 10) -> str:
+    """``text`` broken into lines that fit ``width_in`` inches at ``fontsize`` pt."""
+    per_inch = CHARS_PER_INCH.get(fontsize, 10.5 * 10 / fontsize)
+    return "\n".join(textwrap.wrap(str(text), max(int(width_in * per_inch), 12)) or [""])
+
+
 def slug(text: str) -> str:
     """A file-name-safe form of a label (``part1: oval MOT`` -> ``part1-oval-mot``)."""
     out = re.sub(r"[^A-Za-z0-9]+", "-", str(text)).strip("-").lower()
     return out or "figure"
 
 
+def figure_title(fig: Any) -> str:
+    """The figure's title on one line: its suptitle, else its first panel's title."""
+    sup = getattr(fig, "_suptitle", None)
+    text = sup.get_text() if sup is not None else ""
+    if not text and fig.axes:
+        text = fig.axes[0].get_title()
+    return " ".join(text.split())
+
+
 def save_figure(fig: Any, out_base: Path) -> list[Path]:
-    """Write ``out_base.png`` and ``out_base.pdf`` atomically and close the figure."""
+    """Write ``out_base.png`` and ``out_base.pdf`` atomically and close the figure. Both carry
+    the figure's title as their ``Title`` metadata, which the HTML page's caption reads."""
     plt = _pyplot()
     paths = []
+    title = figure_title(fig)
     try:
         for fmt in FORMATS:
             buf = io.BytesIO()
-            fig.savefig(buf, format=fmt, dpi=DPI, bbox_inches="tight")
+            fig.savefig(buf, format=fmt, dpi=DPI, bbox_inches="tight",
+                        metadata={"Title": title} if title else None)
             paths.append(atomic_write_bytes(out_base.with_suffix(f".{fmt}"), buf.getvalue()))
     finally:
         plt.close(fig)
@@ -71,45 +102,128 @@ def moving_average(values: np.ndarray, window: int) -> np.ndarray:
 
 
 def _seed_matrix(frame: pd.DataFrame, value: str, smooth: int) -> tuple[np.ndarray, np.ndarray]:
-    """(episodes, (seeds, episodes) matrix) of one entrant's per-seed curves, each smoothed."""
+    """(episodes, (seeds, episodes) matrix) of one entrant's per-seed curves, each smoothed;
+    nan after a seed's last episode (a seed that stopped earlier has no value there)."""
     episodes = np.sort(frame["episode"].dropna().unique())
     rows = []
     for _, grp in frame.groupby("job_id", sort=False):
         series = grp.groupby("episode")[value].mean().reindex(episodes)
-        rows.append(moving_average(series.to_numpy(dtype=float), smooth))
+        smoothed = np.array(moving_average(series.to_numpy(dtype=float), smooth), dtype=float)
+        smoothed[episodes > grp["episode"].max()] = np.nan
+        rows.append(smoothed)
     return episodes, np.vstack(rows) if rows else np.empty((0, episodes.size))
 
 
+def seed_counts(episodes: np.ndarray, matrix: np.ndarray) -> list[tuple[float, int]]:
+    """Where the number of seeds with a value changes: (first episode, n) for each stretch."""
+    counts = np.isfinite(matrix).sum(axis=0)
+    out: list[tuple[float, int]] = []
+    for x, n in zip(episodes, counts, strict=True):
+        if not out or out[-1][1] != int(n):
+            out.append((float(x), int(n)))
+    return out
+
+
+def n_label(changes: list[tuple[float, int]]) -> str:
+    """``n=2`` or ``n=2, n=1 from ep 190``: the seeds a mean is over, where that changes."""
+    if not changes:
+        return "n=0"
+    parts = [f"n={changes[0][1]}"]
+    parts += [f"n={n} from ep {x:g}" for x, n in changes[1:]]
+    return ", ".join(parts)
+
+
 def _band_plot(ax: Any, x: np.ndarray, matrix: np.ndarray, label: str, colour: Any) -> None:
+    """Mean over seeds with its 95% band; the legend gives n, and where it changes. Where fewer
+    seeds than the most have a value (one stopped earlier) the mean is dashed: a jump there is
+    the stopped seed leaving the mean, not the others' learning."""
     mean, low, high = stats.band(matrix)
-    ax.plot(x, mean, color=colour, label=f"{label} (n={matrix.shape[0]})", lw=1.4)
+    label = wrap(f"{label} ({n_label(seed_counts(x, matrix))})", 6.5, 8)
+    counts = np.isfinite(matrix).sum(axis=0)
+    full = counts == counts.max() if counts.size else counts.astype(bool)
+    ax.plot(x, np.where(full, mean, np.nan), color=colour, label=label, lw=1.4)
+    if not full.all():
+        # dashed over the stretches with fewer seeds, joined to the solid line at each edge
+        short = ~full
+        edge = short.copy()
+        edge[1:] |= short[:-1]
+        edge[:-1] |= short[1:]
+        ax.plot(x, np.where(edge, mean, np.nan), color=colour, lw=1.2, ls="--")
     if matrix.shape[0] > 1:
         ax.fill_between(x, low, high, color=colour, alpha=0.2, lw=0)
 
 
+def _mark_stops(ax: Any, frame: pd.DataFrame, x: np.ndarray, matrix: np.ndarray,
+                colour: Any) -> bool:
+    """An ``x`` at the last episode of every seed that stopped before the others; whether any
+    did."""
+    last = float(x[-1]) if x.size else math.nan
+    stopped = False
+    for row, (_, grp) in zip(matrix, frame.groupby("job_id", sort=False), strict=True):
+        end = float(grp["episode"].max())
+        if end < last:
+            k = int(np.searchsorted(x, end))
+            ax.plot([end], [row[k]], marker="x", ms=8, mew=2, color=colour, ls="none")
+            stopped = True
+    return stopped
+
+
+def best_laps_s(models: pd.DataFrame) -> dict[str, float]:
+    """Each entrant's best clean lap over its runs' models: the tables' bLT, from
+    ``results.metrics`` (``run_table`` then ``blt_alt``), not recomputed here."""
+    out: dict[str, float] = {}
+    for entrant, grp in models.groupby("entrant", sort=False):
+        runs = metrics.run_table(grp)
+        out[str(entrant)] = metrics.blt_alt(runs["run_best_s"].to_numpy(dtype=float))[0]
+    return out
+
+
 def plot_learning_curves(episodes: pd.DataFrame, test_laps: pd.DataFrame, title: str,
                          out_base: Path, smooth: int = 20) -> list[Path]:
-    """Training reward (moving average) and test lap time vs episode: mean and 95% band over
-    seeds, one colour per entrant. ``test_laps`` holds model rows (episode, clean_lap_s)."""
+    """Training reward (moving average; mean and 95% band over seeds) and every clean test lap
+    vs episode, one colour per entrant.
+
+    ``test_laps`` holds model rows (``results.metrics.model_table``: job_id, episode, entrant,
+    clean_lap_s). Each seed's clean tests are markers joined by a thin line, so an isolated
+    clean test shows; a star marks the entrant's best lap, the tables' bLT (``best_laps_s``).
+    A seed that stopped before the others ends in an ``x``, and the legend gives n where it
+    changes.
+    """
     plt = _pyplot()
-    fig, (ax_r, ax_l) = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
+    fig, (ax_r, ax_l) = subplots(2, 1, figsize=(8, 7.5), sharex=True)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     entrants = list(dict.fromkeys([*episodes.get("entrant", pd.Series(dtype=str)),
                                    *test_laps.get("entrant", pd.Series(dtype=str))]))
+    best = best_laps_s(test_laps) if not test_laps.empty else {}
+    stopped = False
     for k, entrant in enumerate(entrants):
         colour = colours[k % len(colours)]
         ep = episodes.loc[episodes["entrant"] == entrant]
         if not ep.empty:
             x, m = _seed_matrix(ep, "reward", smooth)
             _band_plot(ax_r, x, m, entrant, colour)
+            stopped |= _mark_stops(ax_r, ep, x, m, colour)
         tl = test_laps.loc[test_laps["entrant"] == entrant]
-        if not tl.empty and tl["clean_lap_s"].notna().any():
-            x, m = _seed_matrix(tl, "clean_lap_s", 1)
-            _band_plot(ax_l, x, m, entrant, colour)
+        clean = tl.loc[tl["clean_lap_s"].notna()]
+        for _, grp in clean.groupby("job_id", sort=False):
+            grp = grp.groupby("episode")["clean_lap_s"].min()
+            ax_l.plot(grp.index, grp.to_numpy(dtype=float), color=colour, lw=0.7, alpha=0.6,
+                      marker="o", ms=3.5)
+        lap_s = best.get(str(entrant), math.nan)
+        if math.isfinite(lap_s):
+            at = clean.loc[clean["clean_lap_s"] == lap_s, "episode"].min()
+            runs = tl["job_id"].nunique()
+            ax_l.plot([at], [lap_s], marker="*", ms=13, color=colour, mec="black", ls="none",
+                      label=wrap(f"{entrant}: bLT {lap_s:.2f} s (n={runs})", 6.5, 8))
+    if stopped:
+        ax_r.plot([], [], marker="x", color="0.3", ls="none", label="a seed's last episode")
+    if best:
+        ax_l.plot([], [], marker="o", ms=3.5, color="0.3", lw=0.7,
+                  label="clean test of one seed")
     ax_r.set_ylabel(f"training reward (MA {smooth})")
-    ax_l.set_ylabel("test lap time, zero damage (s)")
+    ax_l.set_ylabel("clean test lap (s)")
     ax_l.set_xlabel("training episode")
-    ax_r.set_title(title)
+    ax_r.set_title(wrap(title, 7.5, 12))
     for ax in (ax_r, ax_l):
         ax.grid(alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
@@ -121,9 +235,8 @@ def plot_generalisation(models: pd.DataFrame, tracks: list[str], title: str, out
                         general: dict[str, Any] | None = None) -> list[Path]:
     """Lap time on each track vs training episode for every run of one configuration (paper,
     Figure 4): one panel per track, the general model's episode as a vertical red line."""
-    plt = _pyplot()
     n = max(len(tracks), 1)
-    fig, axes = plt.subplots(n, 1, figsize=(8, 2.2 * n + 0.8), sharex=True, squeeze=False)
+    fig, axes = subplots(n, 1, figsize=(8, 2.2 * n + 1.2), sharex=True, squeeze=False)
     for k, track in enumerate(tracks):
         ax = axes[k][0]
         colour = TRACK_COLOURS[k % len(TRACK_COLOURS)]
@@ -138,16 +251,15 @@ def plot_generalisation(models: pd.DataFrame, tracks: list[str], title: str, out
         ax.grid(alpha=0.3)
         if on_track["clean_lap_s"].isna().all():
             ax.text(0.5, 0.5, "DNF: no clean lap", transform=ax.transAxes, ha="center")
-    axes[0][0].set_title(title + ("" if general is None else
-                                  f"  (red: general model, {general['job_id']})"))
+    axes[0][0].set_title(wrap(title + ("" if general is None else
+                                       f"  (red: general model, {general['job_id']})"), 7.5, 12))
     axes[-1][0].set_xlabel("training episode")
     return save_figure(fig, out_base)
 
 
 def plot_action_trace(trace: pd.DataFrame, title: str, out_base: Path) -> list[Path]:
     """Steer, throttle, brake and speed against distance for one lap (paper, Figure 5)."""
-    plt = _pyplot()
-    fig, axes = plt.subplots(4, 1, figsize=(9, 6.5), sharex=True)
+    fig, axes = subplots(4, 1, figsize=(9, 7), sharex=True)
     d = trace["distance_m"].to_numpy(dtype=float)
     d = d - d[0]
     for ax, col, colour, label in zip(
@@ -161,7 +273,7 @@ def plot_action_trace(trace: pd.DataFrame, title: str, out_base: Path) -> list[P
     axes[0].set_ylim(-1.05, 1.05)
     axes[1].set_ylim(-0.05, 1.05)
     axes[2].set_ylim(-0.05, 1.05)
-    axes[0].set_title(title)
+    axes[0].set_title(wrap(title, 8.5, 12))
     axes[-1].set_xlabel("distance (m)")
     return save_figure(fig, out_base)
 
@@ -186,9 +298,8 @@ def plot_racing_line(traces: dict[str, pd.DataFrame], title: str, out_base: Path
     for that driver, not one re-measured from the trace (whose samples start up to a control
     step after the line).
     """
-    plt = _pyplot()
     n = max(len(traces), 1)
-    fig, axes = plt.subplots(1, n, figsize=(5.2 * n, 4.8), squeeze=False)
+    fig, axes = subplots(1, n, figsize=(5.2 * n, 5.2), squeeze=False)
     speeds = [t["speed_kmh"].to_numpy(dtype=float) for t in traces.values()]
     vmin = min((float(np.nanmin(s)) for s in speeds if s.size), default=0.0)
     vmax = max((float(np.nanmax(s)) for s in speeds if s.size), default=1.0)
@@ -201,13 +312,14 @@ def plot_racing_line(traces: dict[str, pd.DataFrame], title: str, out_base: Path
         mappable = ax.scatter(trace["x_m"], trace["y_m"], c=trace["speed_kmh"], s=3,
                               cmap="viridis", vmin=vmin, vmax=vmax)
         lap = (lap_times_s or {}).get(label, math.nan)
-        ax.set_title(f"{label}: {lap:.2f} s" if math.isfinite(lap) else label, fontsize=9)
+        head = f"{label}: {lap:.2f} s" if math.isfinite(lap) else label
+        ax.set_title(wrap(head, 4.0, 9), fontsize=9)
         ax.set_aspect("equal")
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
     if mappable is not None:
         fig.colorbar(mappable, ax=axes[0].tolist(), label="speed (km/h)", shrink=0.8)
-    fig.suptitle(title)
+    fig.suptitle(wrap(title, 5.0 * n, 12))
     return save_figure(fig, out_base)
 
 
@@ -225,23 +337,25 @@ def delta_time(trace_a: pd.DataFrame, trace_b: pd.DataFrame,
 
 def plot_lap_delta(trace_a: pd.DataFrame, trace_b: pd.DataFrame, label_a: str, label_b: str,
                    title: str, out_base: Path) -> list[Path]:
-    """Lap against lap: both speeds against distance, and the running time difference A - B."""
-    plt = _pyplot()
-    fig, (ax_v, ax_d) = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True,
-                                     gridspec_kw={"height_ratios": [2, 1]})
-    for trace, label, colour in ((trace_a, label_a, "tab:red"), (trace_b, label_b, "tab:blue")):
+    """Lap against lap: both speeds against distance, and the running time difference A - B
+    (> 0 where A is behind). The names stand in the legend as "A: ..." and "B: ...", so the
+    difference's axis label stays short however long the entrants' names are."""
+    fig, (ax_v, ax_d) = subplots(2, 1, figsize=(9, 6), sharex=True,
+                                 gridspec_kw={"height_ratios": [2, 1]})
+    for trace, label, colour in ((trace_a, f"A: {label_a}", "tab:red"),
+                                 (trace_b, f"B: {label_b}", "tab:blue")):
         d = trace["distance_m"].to_numpy(dtype=float)
-        ax_v.plot(d - d[0], trace["speed_kmh"], color=colour, lw=1, label=label)
+        ax_v.plot(d - d[0], trace["speed_kmh"], color=colour, lw=1, label=wrap(label, 7.0, 8))
     grid, delta = delta_time(trace_a, trace_b)
     ax_d.plot(grid, delta, color="black", lw=1)
     ax_d.axhline(0.0, color="0.5", lw=0.8)
     ax_d.fill_between(grid, delta, 0.0, where=delta > 0, color="tab:blue", alpha=0.2)
     ax_d.fill_between(grid, delta, 0.0, where=delta < 0, color="tab:red", alpha=0.2)
     ax_v.set_ylabel("speed (km/h)")
-    ax_d.set_ylabel(f"delta (s)\n{label_a} - {label_b}")
+    ax_d.set_ylabel("A \u2212 B (s)")
     ax_d.set_xlabel("distance (m)")
     ax_v.legend(fontsize=8)
-    ax_v.set_title(title)
+    ax_v.set_title(wrap(title, 8.5, 12))
     for ax in (ax_v, ax_d):
         ax.grid(alpha=0.3)
     return save_figure(fig, out_base)
@@ -254,8 +368,7 @@ def plot_ablation(episodes: pd.DataFrame, labels: dict[str, str], title: str, ou
 
     ``labels`` maps entrant -> legend label, in the order (off, on).
     """
-    plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(8, 4))
+    fig, ax = subplots(figsize=(8, 4.5))
     colours = ["tab:green", "tab:red", "tab:blue", "tab:orange"]
     for k, (entrant, label) in enumerate(labels.items()):
         ep = episodes.loc[episodes["entrant"] == entrant]
@@ -263,9 +376,10 @@ def plot_ablation(episodes: pd.DataFrame, labels: dict[str, str], title: str, ou
             continue
         x, m = _seed_matrix(ep, "reward", smooth)
         _band_plot(ax, x, m, label, colours[k % len(colours)])
+        _mark_stops(ax, ep, x, m, colours[k % len(colours)])
     ax.set_xlabel("training episode")
     ax.set_ylabel(f"training reward (MA {smooth})")
-    ax.set_title(title)
+    ax.set_title(wrap(title, 7.5, 12))
     ax.grid(alpha=0.3)
     if ax.get_legend_handles_labels()[0]:
         ax.legend(fontsize=8)
@@ -369,7 +483,8 @@ def one_lap(trace: pd.DataFrame, lap_times_s: list[float] | None = None,
 def bot_trace(data: Any, part: str, track: str) -> tuple[str, pd.DataFrame] | None:
     """The follower bot's lap on ``track`` as the store keeps it
     (``<part>/_baselines/<bot>-<ref>-<track>/trace.parquet``, the ``baselines.path`` column), or
-    None where no baseline drive stored one."""
+    None where no baseline drive stored one. The lap's ``attrs["reference"]`` names the line the
+    bot followed (for the line figure's title)."""
     rows = data.baselines
     if rows.empty:
         return None
@@ -385,7 +500,9 @@ def bot_trace(data: Any, part: str, track: str) -> tuple[str, pd.DataFrame] | No
             data.problems.append(f"baseline trace {row['path']}: missing columns")
             continue
         label, _ = bot_row_label(rows, str(row["bot"]), str(row["reference"]))
-        return label, one_lap(trace)
+        lap = one_lap(trace)
+        lap.attrs["reference"] = str(row["reference"])
+        return label, lap
     return None
 
 
@@ -437,12 +554,14 @@ def make_figures(ctx: Context, tables_: list[ReportTable],
         rival = _rival(data, table1, rec)
         traces = {label: trace}
         lap_times = {label: rec["bLT"]}
+        lines = [str(rec["reference"])]
         if rival is not None:
             traces[rival[0]] = rival[1]
             lap_times[rival[0]] = rival[2]
+            lines.append(rival[3])
         figures[f"line-{name}"] = plot_racing_line(
-            traces, f"{group}: racing line coloured by speed", out_dir / f"line-{name}",
-            _load_track(track), lap_times)
+            traces, f"{group}: paths driven, coloured by speed ({lines_driven(lines)})",
+            out_dir / f"line-{name}", _load_track(track), lap_times)
         if rival is not None:
             figures[f"delta-{name}"] = plot_lap_delta(
                 trace, rival[1], label, rival[0], f"{group}: lap vs lap",
@@ -458,6 +577,16 @@ def make_figures(ctx: Context, tables_: list[ReportTable],
     return figures
 
 
+def lines_driven(kinds: list[str]) -> str:
+    """What the drivers of a line figure followed, by the lines' labels (``lines.kinds``):
+    ``both on the MOT line`` or ``on the MOT and RC lines``; a path is only a racing line where
+    its driver followed one."""
+    labels = list(dict.fromkeys(line_label(k) for k in kinds))
+    if len(labels) == 1:
+        return f"{'both' if len(kinds) > 1 else 'driven'} on the {labels[0]} line"
+    return "on the " + " and ".join(labels) + " lines"
+
+
 def _group_leaders(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """The record with the lowest bLT in each Table 1 group."""
     best: dict[str, dict[str, Any]] = {}
@@ -471,18 +600,19 @@ def _group_leaders(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def _rival(data: Any, table1: ReportTable,
-           leader: dict[str, Any]) -> tuple[str, pd.DataFrame, float] | None:
-    """What to compare the fastest lap with, and its lap time as Table 1 shows it: a stored
-    follower-bot lap, else the runner-up entrant of the same column."""
+           leader: dict[str, Any]) -> tuple[str, pd.DataFrame, float, str] | None:
+    """What to compare the fastest lap with, its lap time as Table 1 shows it and the line it
+    followed: a stored follower-bot lap, else the runner-up entrant of the same column."""
     bot = bot_trace(data, leader["part"], leader["track"])
     if bot is not None:
         row = next((r for r in table1.rows if r["kind"] == "bot" and r["label"] == bot[0]), None)
         lap_s = row["values"].get((leader["group"], "bLT"), math.nan) if row else math.nan
-        return bot[0], bot[1], float(lap_s)
+        return bot[0], bot[1], float(lap_s), str(bot[1].attrs["reference"])
     others = [r for r in table1.records if r["group"] == leader["group"] and r is not leader
               and r.get("status") == "ok" and r.get("best_job")]
     for rec in sorted(others, key=lambda r: r["bLT"]):
         trace = data.read_trace(rec["best_job"], leader["track"])
         if trace is not None and not trace.empty:
-            return f"{rec['row']} ({rec['best_job'].rsplit('/', 1)[-1]})", trace, rec["bLT"]
+            return (f"{rec['row']} ({rec['best_job'].rsplit('/', 1)[-1]})", trace, rec["bLT"],
+                    str(rec["reference"]))
     return None

@@ -22,15 +22,23 @@ import pandas as pd
 from formula_tourney.report.claims import profiles
 from formula_tourney.report.claims.evaluate import ClaimResult
 from formula_tourney.report.paper_tables import Context, config_label, general_model_of
-from formula_tourney.report.plots import _pyplot, plot_ablation, plot_generalisation, save_figure
+from formula_tourney.report.plots import (
+    _pyplot,
+    plot_ablation,
+    plot_generalisation,
+    save_figure,
+    subplots,
+    wrap,
+)
 from formula_tourney.report.plots import slug as _slug
 
 
 def plot_performance_profile(ratios: pd.DataFrame, title: str, out_base: Path) -> list[Path]:
     """Fraction of runs with lap / reference limit <= tau, per group and over all runs, with
-    95 % bootstrap bands (rliable's performance profile)."""
+    95 % bootstrap bands (rliable's performance profile); the legend says what the shaded
+    bands are."""
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(8, 4.5))
+    fig, ax = subplots(figsize=(8, 5))
     taus = profiles.tau_grid(ratios["ratio"].to_numpy(dtype=float))
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     groups = [(g, grp["ratio"].to_numpy(dtype=float)) for g, grp in
@@ -40,13 +48,14 @@ def plot_performance_profile(ratios: pd.DataFrame, title: str, out_base: Path) -
         mid, low, high = profiles.profile_band(values, taus)
         colour = "black" if name == "all runs" else colours[k % len(colours)]
         ax.step(taus, mid, where="post", color=colour, lw=2.0 if name == "all runs" else 1.2,
-                label=f"{name} (n={values.size})")
+                label=wrap(f"{name} (n={values.size})", 3.5, 7))
         if values.size > 1:
             ax.fill_between(taus, low, high, step="post", color=colour, alpha=0.15, lw=0)
+    ax.fill_between([], [], color="0.5", alpha=0.3, lw=0, label="95% bootstrap CI (shaded)")
     ax.set_xlabel("tau = best clean lap / reference limit")
     ax.set_ylabel("fraction of runs with ratio <= tau")
     ax.set_ylim(-0.02, 1.02)
-    ax.set_title(title)
+    ax.set_title(wrap(title, 7.5, 12))
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, ncol=2)
     return save_figure(fig, out_base)
