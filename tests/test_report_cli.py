@@ -88,7 +88,7 @@ def test_report_writes_several_formats_in_one_call(results: Path, tmp_path: Path
     md = (tmp_path / "report.md").read_text()
     assert out.strip() == md.strip()  # stdout is the Markdown document alone
     assert "| win4 | **27.07** | **27.17** |" in md
-    assert "\\textbf{27.07}" in (tmp_path / "tables.tex").read_text()
+    assert "\\textbf{27.07}" in (tmp_path / "report.tex").read_text()
     assert "<td class='best'>27.07</td>" in (tmp_path / "report.html").read_text()
     assert f"wrote report.html: {tmp_path / 'report.html'}" in " ".join(err.split())
     code, out, _ = _run(["report", "--results", str(results), "--part", "part1", "--out",
@@ -96,7 +96,7 @@ def test_report_writes_several_formats_in_one_call(results: Path, tmp_path: Path
                         capsys)
     doc = json.loads(out)
     assert code == 0 and doc["formats"] == ["latex", "html"]
-    assert {"tables.tex", "table1.tex", "report.html"} <= set(doc["files"])
+    assert {"report.tex", "table1.tex", "report.html"} <= set(doc["files"])
     assert "report.md" not in doc["files"]
 
 
@@ -112,7 +112,7 @@ def test_report_empty_part_does_not_crash(results: Path, capsys) -> None:
 def test_latex_is_standalone_and_compiles(results: Path, tmp_path: Path) -> None:
     rep = build_report("fixture-cup", results, out_dir=tmp_path, formats=["latex"],
                        figures=False)
-    tex = rep.files["tables.tex"].read_text()
+    tex = rep.files["report.tex"].read_text()
     assert tex.startswith("\\documentclass")
     # Table 1's 4 parts + Tables 2, 3, comparisons + the claims and the cost
     assert tex.count("\\begin{table}") == tex.count("\\end{table}") == 9
@@ -122,7 +122,7 @@ def test_latex_is_standalone_and_compiles(results: Path, tmp_path: Path) -> None
     if shutil.which("pdflatex") is None:
         pytest.skip("no pdflatex here: structure checked only")
     proc = subprocess.run(
-        ["pdflatex", "-interaction=nonstopmode", "-halt-on-error", "tables.tex"],
+        ["pdflatex", "-interaction=nonstopmode", "-halt-on-error", "report.tex"],
         cwd=tmp_path, capture_output=True, text=True, timeout=60,
     )
     assert proc.returncode == 0, proc.stdout[-2000:]
