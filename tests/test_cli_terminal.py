@@ -11,7 +11,8 @@ from rich.console import Console
 from rich.text import Text
 
 from formula_tourney.cli import app, main
-from formula_tourney.commands.race import RACE_COLUMNS, _render, race_table_rows
+from formula_tourney.commands.race import RACE_COLUMNS, _render, _render_series, race_table_rows
+from formula_tourney.report.race_standings import standings, standings_rows
 
 
 def _commands(command: Any, path: tuple[str, ...] = ()) -> Iterator[tuple[str, Any]]:
@@ -71,3 +72,20 @@ def test_race_table_keeps_the_seeds_apart_at_80_columns() -> None:
             assert cell in line, (cell, line)
     assert "WIN4-MOT/seed-1 (blind)" in text and "DNF (off_track)" in text
     assert all(col in text for col in RACE_COLUMNS)
+
+
+def test_standings_keep_the_seeds_apart_at_80_columns() -> None:
+    names = ["WIN4-MOT/seed-0", "WIN4-MOT/seed-1", "WIN1-RC-LAC/seed-0", "follower"]
+    docs = [{"track": "oval", "laps": 1, "start": "standing", "seed": k, "incidents": [],
+             "overtakes": [],
+             "results": [_car(n, 1 + (i + k) % 4, kind="bot" if n == "follower" else "model")
+                         for i, n in enumerate(names)]} for k in range(3)]
+    table = standings(docs)
+    console = Console(width=80, record=True, color_system=None)
+    _render_series(table, docs)(console)
+    text = console.export_text()
+    assert "…" not in text
+    for row in standings_rows(table):
+        line = next(line for line in text.splitlines() if f" {row[1]} " in line
+                    and row[2] in line)
+        assert all(cell in line for cell in row), line
