@@ -2,11 +2,13 @@
 
 Each command group lives in ``formula_tourney/commands/<area>.py`` and exposes
 ``register(app)``; this file only assembles them, maps bad input to exit code 2 and passes on the
-exit code a command chose (``run``: 3 when jobs failed, 130 when interrupted).
+exit code a command chose (``run``: 3 when jobs failed, 130 when interrupted). With ``--json``
+an error is also one JSON object on stdout, so a script reading stdout always gets a document.
 """
 
 from __future__ import annotations
 
+import json
 import sys
 
 import click
@@ -65,14 +67,25 @@ for module in (demo, tracks, lines, agents, tourney, status, report, race, kerne
     module.register(app)
 
 
+def _json_error(args: list[str], message: str, exit_code: int) -> None:
+    """With ``--json`` among the arguments, the error as one JSON object on stdout (the message
+    goes to stderr as without ``--json``)."""
+    if "--json" in args:
+        sys.stdout.write(json.dumps({"error": message, "exit_code": exit_code}) + "\n")
+        sys.stdout.flush()
+
+
 def main(argv: list[str] | None = None) -> None:
-    """Console entry point: a UserInputError becomes one line on stderr and exit code 2; a
-    command's own exit code (``typer.Exit``) becomes the process's."""
+    """Console entry point: a UserInputError becomes one line on stderr and exit code 2 (and,
+    with ``--json``, a JSON error object on stdout); a command's own exit code (``typer.Exit``)
+    becomes the process's."""
+    args = list(sys.argv[1:] if argv is None else argv)
     try:
         # Without standalone mode click *returns* the code of a typer.Exit instead of exiting.
-        code = app(args=argv, standalone_mode=False)
+        code = app(args=args, standalone_mode=False)
     except UserInputError as err:
         print(f"error: {err}", file=sys.stderr)
+        _json_error(args, str(err), 2)
         sys.exit(2)
     except typer.Exit as exc:  # raised outside click's own handling
         sys.exit(exc.exit_code)
@@ -80,6 +93,7 @@ def main(argv: list[str] | None = None) -> None:
         raise
     except USAGE_ERRORS as exc:  # usage errors come through here in non-standalone mode
         exc.show()
+        _json_error(args, exc.format_message(), exc.exit_code)
         sys.exit(exc.exit_code)
     except click.exceptions.Abort:
         print("aborted", file=sys.stderr)

@@ -136,4 +136,4 @@ def test_cli_mismatched_checkpoint_is_refused(tmp_path):
     path = _checkpoint(tmp_path, 5)
     done = _cli(str(path), "--track", "oval", "--laps", "1", "--json")
     assert done.returncode == 2 and "takes 34 values" in done.stderr
-    assert done.stdout == ""
+    assert json.loads(done.stdout)["exit_code"] == 2  # --json: the error as JSON too

@@ -49,8 +49,23 @@ def test_report_json_has_table1_with_cis(results: Path, capsys) -> None:
     rows = {r["label"]: r for r in doc["tables"]["table1"]["rows"]}
     assert rows["win1"]["cells"]["part1: oval MOT | bLT"] == pytest.approx(27.1)
     assert rows["win1"]["text"]["part1: oval MOT | 95% CI"] == "[27.10, 27.40]"
+    # every number shown is a number too: the CI's bounds, the runs' counts
+    assert rows["win1"]["cells"]["part1: oval MOT | 95% CI"] == pytest.approx([27.1, 27.4])
+    assert all(isinstance(v, float) for v in rows["win1"]["cells"]["part1: oval MOT | 95% CI"])
+    assert rows["win1"]["cells"]["part1: oval MOT | runs"] == {"clean": 3, "planned": 3}
     assert rows["ms3"]["cells"]["part1: oval MOT | bLT"] is None
     assert rows["ms3"]["text"]["part1: oval MOT | aLT"] == "DNF"
+    # an empty cell says why, and the table's legend explains the mark
+    table1 = doc["tables"]["table1"]
+    assert rows["Follower (Tita)"]["text"]["part1: oval MOT | aLT"] == "n/a"
+    assert table1["legend"]["DNF"].startswith("runs exist but none finished")
+    assert "n/a" in table1["legend"]
+    comparisons = {r["label"]: r for r in doc["tables"]["comparisons"]["rows"]}
+    low, high = comparisons["win1"]["cells"]["part1: oval MOT | 95% CI"]
+    shown = comparisons["win1"]["text"]["part1: oval MOT | 95% CI"]
+    assert shown == f"[{low:.2f}, {high:.2f}]" and low < high
+    assert 0.0 < comparisons["win1"]["cells"]["part1: oval MOT | p"] < 1.0
+    assert comparisons["win4"]["text"]["part1: oval MOT | P(faster)"] == "leader"
     assert doc["files"] == {} and doc["figures"] == {}
 
 
@@ -62,8 +77,25 @@ def test_report_terminal_lists_problems_and_renders(results: Path, capsys) -> No
 
 
 def test_report_bad_input_exits_2(results: Path, capsys) -> None:
-    code, _, err = _run(["report", "--results", str(results), "--tournament", "nope"], capsys)
-    assert code == 2 and "no tournament 'nope'" in err
+    code, out, err = _run(["report", "--results", str(results), "--tournament", "nope"], capsys)
+    assert code == 2 and "no tournament 'nope'" in err and out == ""
+
+
+def test_json_errors_are_json_objects_on_stdout(results: Path, tmp_path: Path, capsys) -> None:
+    """With --json a script reads stdout: an error is a JSON object there too (and the usual
+    line on stderr), for bad input and for a bad option alike."""
+    code, out, err = _run(["report", "--results", str(results), "--tournament", "nope",
+                           "--json"], capsys)
+    doc = json.loads(out)
+    assert code == 2 and doc["exit_code"] == 2 and "no tournament 'nope'" in doc["error"]
+    assert err.startswith("error: ") and "no tournament 'nope'" in err
+    code, out, _ = _run(["replay", str(tmp_path / "missing.pt"), "--track", "oval", "--gif",
+                         str(tmp_path / "lap.gif"), "--json"], capsys)
+    assert code == 2 and json.loads(out) == {"error": json.loads(out)["error"], "exit_code": 2}
+    assert "does not exist" in json.loads(out)["error"]
+    code, out, _ = _run(["report", "--results", str(results), "--no-such-option", "--json"],
+                        capsys)
+    assert code == 2 and "--no-such-option" in json.loads(out)["error"]
 
 
 def test_report_garbage_index_exits_2_naming_the_file(tmp_path: Path, capsys) -> None:
@@ -88,7 +120,7 @@ def test_report_writes_several_formats_in_one_call(results: Path, tmp_path: Path
     md = (tmp_path / "report.md").read_text()
     assert out.strip() == md.strip()  # stdout is the Markdown document alone
     assert "| win4 | **27.07** | **27.17** |" in md
-    assert "\\textbf{27.07}" in (tmp_path / "tables.tex").read_text()
+    assert "\\textbf{27.07}" in (tmp_path / "report.tex").read_text()
     assert "<td class='best'>27.07</td>" in (tmp_path / "report.html").read_text()
     assert f"wrote report.html: {tmp_path / 'report.html'}" in " ".join(err.split())
     code, out, _ = _run(["report", "--results", str(results), "--part", "part1", "--out",
@@ -96,7 +128,7 @@ def test_report_writes_several_formats_in_one_call(results: Path, tmp_path: Path
                         capsys)
     doc = json.loads(out)
     assert code == 0 and doc["formats"] == ["latex", "html"]
-    assert {"tables.tex", "table1.tex", "report.html"} <= set(doc["files"])
+    assert {"report.tex", "table1.tex", "report.html"} <= set(doc["files"])
     assert "report.md" not in doc["files"]
 
 
@@ -112,21 +144,22 @@ def test_report_empty_part_does_not_crash(results: Path, capsys) -> None:
 def test_latex_is_standalone_and_compiles(results: Path, tmp_path: Path) -> None:
     rep = build_report("fixture-cup", results, out_dir=tmp_path, formats=["latex"],
                        figures=False)
-    tex = rep.files["tables.tex"].read_text()
+    tex = rep.files["report.tex"].read_text()
     assert tex.startswith("\\documentclass")
     # Table 1's 4 parts + Tables 2, 3, comparisons + the claims and the cost
     assert tex.count("\\begin{table}") == tex.count("\\end{table}") == 9
     assert "\\textbf{27.07}" in tex and "\\usepackage{booktabs}" in tex
     assert (tmp_path / "table1.tex").is_file() and "\\documentclass" not in (
         tmp_path / "table1.tex").read_text()
-    if shutil.which("pdflatex") is None:
-        pytest.skip("no pdflatex here: structure checked only")
+    if shutil.which("pdflatex") is None:  # CI installs it (.ci/run)
+        pytest.skip("pdflatex not found: install texlive-latex-base and "
+                    "texlive-latex-recommended")
     proc = subprocess.run(
-        ["pdflatex", "-interaction=nonstopmode", "-halt-on-error", "tables.tex"],
+        ["pdflatex", "-interaction=nonstopmode", "-halt-on-error", "report.tex"],
         cwd=tmp_path, capture_output=True, text=True, timeout=60,
     )
     assert proc.returncode == 0, proc.stdout[-2000:]
-    assert (tmp_path / "tables.pdf").stat().st_size > 10_000
+    assert (tmp_path / "report.pdf").stat().st_size > 10_000
 
 
 def test_html_and_figures_for_a_generalisation_part(results: Path, tmp_path: Path) -> None:

@@ -135,7 +135,7 @@ def test_table2_lac(built: dict[str, ReportTable]) -> None:
         "Follower (Tita)", "per1m MOT", "per1m RC", "per1m RC + LAC", LIMIT_LABEL]
     lac = _row(t2, "per1m RC + LAC")
     assert lac["values"][("technical", "bLT")] == pytest.approx(66.0 - 1.0 + E2)
-    assert lac["text"][("oval", "bLT")] == "-"  # never trained on the oval
+    assert lac["text"][("oval", "bLT")] == "not run"  # never trained on the oval
     # per1m RC pools part2 and part3 runs on the technical track: best is seed 0 of either
     assert _row(t2, "per1m RC")["values"][("technical", "bLT")] == pytest.approx(67.5 + E2)
     assert _row(t2, "Follower (Tita)")["values"][("technical", "bLT")] == pytest.approx(68.11)

@@ -62,7 +62,7 @@ def test_show_json_and_plot(capsys, tmp_path):
 
 def test_unknown_track_exit_2(capsys):
     code, out, err = run(capsys, "tracks", "show", "nosuch", "--json")
-    assert code == 2 and out == ""
+    assert code == 2 and json.loads(out)["exit_code"] == 2
     assert err.startswith("error: unknown track 'nosuch'; known tracks: oval, technical, flowing")
     assert err.count("\n") == 1
 
@@ -72,7 +72,7 @@ def test_malformed_toml_exit_2_names_file_and_writes_nothing(capsys, tmp_path):
     bad.write_text('width_m = 10\n[[segment]]\ntype = "straight"\nlength_m = \n')
     plot = tmp_path / "broken.png"
     code, out, err = run(capsys, "tracks", "show", str(bad), "--plot", str(plot), "--json")
-    assert code == 2 and out == ""
+    assert code == 2 and json.loads(out)["exit_code"] == 2
     assert err.startswith(f"error: {bad}: invalid TOML") and "line 4" in err
     assert not plot.exists()
     wrong_key = tmp_path / "wrong.toml"
@@ -113,7 +113,7 @@ def test_import_entity_bomb_exit_2_nothing_written(capsys, tmp_path, data_dir):
     bomb = tmp_path / "bomb.xml"
     bomb.write_text(BOMB)
     code, out, err = run(capsys, "tracks", "import", str(bomb), "--json")
-    assert code == 2 and out == ""
+    assert code == 2 and json.loads(out)["exit_code"] == 2
     assert f"error: {bomb}, line 3: internal entity definition 'lol' is refused" in err
     assert not (data_dir / "tracks").exists()
 
@@ -159,7 +159,7 @@ def test_import_refuses_a_name_with_control_characters(capsys, tmp_path, data_di
     xml = tmp_path / "e-stadium.xml"
     xml.write_text(torcs_xml(stadium_segments()))
     code, out, err = run(capsys, "tracks", "import", str(xml), "--name", name, "--json")
-    assert code == 2 and out == "" and "invalid track name" in err
+    assert code == 2 and json.loads(out)["exit_code"] == 2 and "invalid track name" in err
     assert not (data_dir / "tracks").exists()
 
 
@@ -169,7 +169,7 @@ def test_generated_names_are_reserved_and_seeds_bounded(capsys, data_dir):
     assert code == 2 and "'gen-8' is reserved for generated tracks" in err
     assert not (data_dir / "tracks").exists()
     code, out, err = run(capsys, "tracks", "show", "gen-99999999999", "--json")
-    assert code == 2 and out == ""
+    assert code == 2 and json.loads(out)["exit_code"] == 2
     assert err == ("error: track 'gen-99999999999': seed 99999999999 is out of range; "
                    "gen-<seed> takes a seed in 0..999999999\n")
 
@@ -252,7 +252,7 @@ def test_import_bad_folders_exit_2(capsys, tmp_path, data_dir):
     empty = tmp_path / "empty"
     (empty / "road").mkdir(parents=True)
     code, out, err = run(capsys, "tracks", "import", str(empty), "--json")
-    assert code == 2 and out == "" and err.count("\n") == 1
+    assert code == 2 and json.loads(out)["exit_code"] == 2 and err.count("\n") == 1
     assert err == f"error: {empty}: no .xml track files in this folder or below it\n"
     code, _, err = run(capsys, "tracks", "import", str(tmp_path / "nothere"))
     assert code == 2 and "no such file or folder" in err
@@ -296,7 +296,7 @@ def test_a_tournament_names_xml_files_and_imported_tracks(capsys, tmp_path, data
     path.write_text(TOURNEY.format(train='"oval", "missing.xml"'))
     code, out, err = run(capsys, "run", str(path), "--dry-run", "--json", "--results",
                          str(results))
-    assert code == 2 and out == "" and err.count("\n") == 1
+    assert code == 2 and json.loads(out)["exit_code"] == 2 and err.count("\n") == 1
     assert err == (f"error: {path}:6: parts[0].train_tracks: {xml.parent / 'missing.xml'}: "
                    "track file not found\n")
     assert not results.exists()

@@ -34,7 +34,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Run the quick tournament (WIN1 and WIN4 on the oval, WIN1 on technical); print Table 1.
 
-        Exit codes as ``run``: 0 every job done, 2 bad input, 3 some jobs failed, 130
+        Exit codes as for run: 0 every job done, 2 bad input, 3 some jobs failed, 130
         interrupted."""
         from formula_tourney.report.build import build_report
         from formula_tourney.tourney.api import run_tournament

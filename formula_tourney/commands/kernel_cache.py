@@ -27,7 +27,7 @@ def register(app: typer.Typer) -> None:
     def compile_cmd(
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
     ) -> None:
-        """Compile the simulator's kernels into numba's cache (``make setup`` runs it)."""
+        """Compile the simulator's kernels into numba's cache (make setup runs it)."""
         # heavy (torch, numba) imports stay inside the command so that --help is instant
         from formula_tourney.bots.baselines import bot_report
         from formula_tourney.sim.catalog import load_track

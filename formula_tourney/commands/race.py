@@ -12,9 +12,12 @@ import math
 from pathlib import Path
 
 import typer
+from rich.table import Table
+from rich.text import Text
 
 from formula_tourney.commands.output import emit, message
 from formula_tourney.errors import UserInputError
+from formula_tourney.report.renderers import print_whole
 
 
 def _fmt(x: float | None, digits: int = 3) -> str:
@@ -44,17 +47,25 @@ RACE_COLUMNS = ["pos", "driver", "grid", "laps", "time/gap s", "best lap s", "da
                 "contacts", "caused", "passes"]
 
 
-def _render(doc: dict):
-    from rich.table import Table
+def whole_table(title: str, columns: list[str], rows: list[list[str]]) -> Table:
+    """A rich table of plain text whose cells are never cut: each column is as wide as its
+    longest text (``report.renderers.print_whole`` prints it whole on a narrow console), so
+    two cars "WIN4-MOT/seed-0" and "WIN4-MOT/seed-1" stay apart at 80 columns."""
+    table = Table(title=Text(title))
+    for k, col in enumerate(columns):
+        width = max([len(col), *(len(row[k]) for row in rows)])
+        table.add_column(Text(col), justify="left" if col == "driver" else "right",
+                         no_wrap=True, min_width=width)
+    for row in rows:
+        table.add_row(*(Text(cell) for cell in row))
+    return table
 
+
+def _render(doc: dict):
     def render(console) -> None:
-        table = Table(title=f"Race: {doc['track']}, {doc['laps']} laps, {doc['start']} start, "
-                            f"seed {doc['seed']}")
-        for col in RACE_COLUMNS:
-            table.add_column(col, justify="left" if col == "driver" else "right")
-        for row in race_table_rows(doc):
-            table.add_row(*row)
-        console.print(table)
+        print_whole(whole_table(f"Race: {doc['track']}, {doc['laps']} laps, {doc['start']} "
+                                f"start, seed {doc['seed']}", RACE_COLUMNS,
+                                race_table_rows(doc)), console)
         if any(not r["sees_opponents"] and r["kind"] == "model" for r in doc["results"]):
             console.print("(blind): a model trained without the opponent sensors; it does not "
                           "see the other cars")
@@ -78,19 +89,14 @@ def _points(text: str) -> list[float]:
 
 
 def _render_series(table: dict, docs: list[dict]):
-    from rich.table import Table
-
+    # the standings pull scipy (about 2 s): only when a series is shown, never for --help
     from formula_tourney.report.race_standings import STANDINGS_COLUMNS, standings_rows
 
     def render(console) -> None:
         for doc in docs:
             _render(doc)(console)
-        t = Table(title=f"Standings after {table['races']} races")
-        for col in STANDINGS_COLUMNS:
-            t.add_column(col, justify="left" if col == "driver" else "right")
-        for row in standings_rows(table):
-            t.add_row(*row)
-        console.print(t)
+        print_whole(whole_table(f"Standings after {table['races']} races", STANDINGS_COLUMNS,
+                                standings_rows(table)), console)
     return render
 
 
@@ -214,7 +220,7 @@ def register(app: typer.Typer) -> None:
         workers: int | None = typer.Option(None, "--workers", help="Parallel jobs."),
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
     ) -> None:
-        """``run FILE`` (train what is left, race the race parts; resumable), then the
+        """Run FILE (train what is left, race the race parts; resumable), then print the
         standings of every finished race part, also written to <part>/_races/ with figures."""
         from formula_tourney.commands.tourney import failures_exit, interrupted
         from formula_tourney.commands.tourney_view import ProgressView

@@ -27,8 +27,8 @@ def register(app: typer.Typer) -> None:
             "--markdown", help="Print GitHub Markdown (and write report.md with --out). Formats "
                                "combine: --markdown --latex --html writes all three.")] = False,
         latex: Annotated[bool, typer.Option(
-            "--latex", help="Write tables.tex (standalone, booktabs) and one .tex per table; "
-                            "prints the path.")] = False,
+            "--latex", help="Write report.tex (a whole document) and one .tex float per "
+                            "table for a paper; prints the paths.")] = False,
         html: Annotated[bool, typer.Option(
             "--html", help="Write a one-page report.html with tables and figures.")] = False,
         figures: Annotated[bool | None, typer.Option(
@@ -39,7 +39,7 @@ def register(app: typer.Typer) -> None:
         claims: Annotated[list[str] | None, typer.Option(
             "--claims",
             help="Claims to check: a shipped set (paper) or a claims file; repeatable. Default: "
-                 "the tournament file's [claims], else the paper's findings.")] = None,
+                 "the tournament file's \\[claims], else the paper's findings.")] = None,
         no_claims: Annotated[bool, typer.Option(
             "--no-claims", help="Leave the claims section out.")] = False,
         as_json: Annotated[bool, typer.Option(

@@ -53,8 +53,8 @@ def table_html(table: ReportTable) -> str:
             parts.append(f"<tr class='{row['kind']}'><td>{html.escape(row['label'])}</td>"
                          + "".join(cells) + "</tr>")
         parts.append("</tbody></table>")
-    parts.append(f"<p class='caption'>{html.escape(table.caption)}</p>")
-    parts.extend(f"<p class='note'>{html.escape(n)}</p>" for n in table.notes)
+    parts.append(f"<p class='caption'>{html.escape(table.full_caption)}</p>")
+    parts.extend(f"<p class='note'>{html.escape(n)}</p>" for n in table.footnotes(by_group=True))
     return "\n".join(parts)
 
 

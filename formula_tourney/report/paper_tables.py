@@ -25,8 +25,17 @@ from formula_tourney.lines.kinds import line_label
 from formula_tourney.report import stats
 from formula_tourney.report.load import TournamentData
 from formula_tourney.report.table_model import (
-    DASH,
+    DNF,
+    LEADER,
+    NO_GENERAL,
+    NO_LIMIT,
+    NO_RESULT,
+    NOT_APPLICABLE,
+    NOT_DRIVEN,
+    NOT_RUN,
+    NOT_TESTED,
     ReportTable,
+    ci_value,
     fmt_ci,
     fmt_damage,
     fmt_gap,
@@ -36,8 +45,6 @@ from formula_tourney.results import metrics
 
 BOT_LABELS = {"follower": "Follower (Tita)", "genetic": "Genetic"}
 LIMIT_LABEL = "Reference limit"
-NO_GENERAL = "none"
-"""Table 3's General cell where no checkpoint of a configuration qualifies as a general model."""
 
 
 def config_label(variant: str, reference: str, lac: bool) -> str:
@@ -146,45 +153,56 @@ def bot_result(baselines: pd.DataFrame, bot: str, reference: str | None, track: 
 
 
 def fill_entry(row: dict[str, Any], group: str, st: dict[str, Any], metrics_: list[str]) -> None:
-    """Write one entrant cell group; DNF replaces lap times when no run finished cleanly."""
+    """Write one entrant cell group: every number also as a number (a CI as [low, high], runs
+    as clean and planned counts); a cell without one says why (``table_model.CELL_MARKS``):
+    DNF when no run finished cleanly, "no result" when none wrote results, "not run" when the
+    entrant was not entered here."""
     status = st["status"]
+    if status == "missing":
+        empty = NO_RESULT if st["planned"] > 0 else NOT_RUN
+    else:
+        empty = DNF if status == "DNF" else NOT_APPLICABLE
     values = {"bLT": st["bLT"], "aLT": st["aLT"], "gap": st["gap_pct"], "IQM": st["iqm"],
-              "dmg": st["damage"]}
+              "dmg": st["damage"], "95% CI": ci_value(st["ci_low"], st["ci_high"])}
     for metric in metrics_:
         if metric in values:
             row["values"][(group, metric)] = values[metric]
         if metric == "runs" and st["planned"] > 0:
             # shown even when no run wrote results, so failed entrants keep their row
+            row["values"][(group, metric)] = {"clean": st["finished_runs"],
+                                              "planned": st["planned"]}
             text = f"{st['finished_runs']}/{st['planned']}"
-        elif status == "missing":
-            text = DASH
         elif metric in ("bLT", "aLT", "IQM"):
-            text = "DNF" if status == "DNF" else fmt_lap(values[metric])
+            text = fmt_lap(values[metric], empty)
         elif metric == "95% CI":
-            text = fmt_ci(st["ci_low"], st["ci_high"])
+            text = fmt_ci(st["ci_low"], st["ci_high"], empty)
         elif metric == "gap":
-            text = fmt_gap(st["gap_pct"])
+            text = fmt_gap(st["gap_pct"], NO_LIMIT if status == "ok" else empty)
         elif metric == "dmg":
-            text = fmt_damage(st["damage"])
+            text = fmt_damage(st["damage"], empty)
         else:
-            text = DASH
+            text = empty
         row["text"][(group, metric)] = text
 
 
 def _fill_single(row: dict[str, Any], group: str, lap_s: float, status: str, limit_s: float,
                  metrics_: list[str], damage: float = math.nan) -> None:
-    """A bot or limit cell group: one lap time, shown under bLT (aLT has no meaning for it)."""
+    """A bot or limit cell group: one lap time, shown under bLT; aLT, CI, IQM and runs do not
+    apply to one lap (n/a); a bot not driven here says so."""
+    empty = {"missing": NOT_DRIVEN, "DNF": DNF}.get(status, NOT_APPLICABLE)
     for metric in metrics_:
-        text = DASH
+        text = NOT_APPLICABLE
         if metric == "bLT":
             row["values"][(group, metric)] = lap_s
-            text = "DNF" if status == "DNF" else fmt_lap(lap_s)
+            text = fmt_lap(lap_s, empty)
         elif metric == "gap" and status == "ok":
             gap = metrics.gap_pct(lap_s, limit_s)
             row["values"][(group, metric)] = gap
-            text = fmt_gap(gap)
-        elif metric == "dmg" and np.isfinite(damage):
-            text = fmt_damage(damage)
+            text = fmt_gap(gap, NO_LIMIT)
+        elif metric in ("gap", "dmg"):
+            text = fmt_damage(damage, empty) if metric == "dmg" else empty
+            if metric == "dmg" and np.isfinite(damage):
+                row["values"][(group, metric)] = damage
         row["text"][(group, metric)] = text
 
 
@@ -268,6 +286,16 @@ class Context:
 
 
 TABLE1_METRICS = ["bLT", "aLT", "95% CI", "IQM", "gap", "runs", "dmg"]
+TABLE1_GLOSSARY = {
+    "bLT": "best lap",
+    "aLT": "mean over runs of each run's best lap",
+    "95% CI": "percentile bootstrap interval of aLT",
+    "IQM": "interquartile mean of the runs' best laps",
+    "gap": "bLT above the track's reference limit",
+    "runs": "runs with a clean lap / runs planned",
+    "dmg": "mean cumulative test damage per run",
+}
+"""What Table 1's metrics mean; a view that leaves some out (LaTeX) describes only the rest."""
 
 
 def group_label(part: str, track: str, reference: str, lac: bool) -> str:
@@ -287,12 +315,10 @@ def table1(ctx: Context) -> ReportTable:
         key="table1", title="Table 1: best (bLT) and average best (aLT) lap time per part",
         caption=(
             "Testing results per part, track and reference line (MOT: middle of track; RC: a "
-            "bot's racing line). bLT: best lap; aLT: mean over runs of each run's best lap, with "
-            "95% bootstrap CI and interquartile mean (IQM), in seconds, for models with 0 damage; "
-            "gap: bLT above the track's reference limit; runs: runs with a clean lap / runs "
-            "planned; dmg: mean cumulative test damage per run. DNF: no run finished cleanly."
+            "bot's racing line; MC: minimum curvature), lap times in seconds, for models with 0 "
+            "damage."
         ),
-        groups=[], metrics={},
+        groups=[], metrics={}, glossary=dict(TABLE1_GLOSSARY),
     )
     groups: dict[str, dict[str, Any]] = {}
     for part in data.part_order():
@@ -441,7 +467,7 @@ def table3(ctx: Context) -> ReportTable:
             "Fastest models (bLT, aLT on the train track) compared with the general model (the "
             "best clean train-track lap among checkpoints that also finish a lap from the part's "
             "share of starts on every unseen track) on every test track, s. DNF: the general "
-            "model has no clean lap there; none: no checkpoint qualifies as a general model."
+            "model has no clean lap there."
         ),
         groups=[], metrics={},
     )
@@ -480,12 +506,14 @@ def table3(ctx: Context) -> ReportTable:
         for track in all_tracks:
             lap = float(laps.get(track, math.nan))
             row["values"][("General", track)] = lap
-            if track not in cfg["tracks"] or not tested:
-                text = DASH
+            if track not in cfg["tracks"]:
+                text = NOT_TESTED
+            elif not tested:
+                text = NO_RESULT
             elif which is None:
                 text = NO_GENERAL
             else:
-                text = fmt_lap(lap) if np.isfinite(lap) else "DNF"
+                text = fmt_lap(lap, DNF)
             row["text"][("General", track)] = text
         if which is not None:
             table.notes.append(
@@ -506,22 +534,25 @@ def table3(ctx: Context) -> ReportTable:
             res = bot_result(ctx.data.baselines, bot, ref, trains[0])
             _fill_single(row, best_group, res["bLT"], res["status"],
                          ctx.limits.get(trains[0], math.nan), ["bLT", "aLT", "gap"])
+        else:  # one bot lap cannot stand for several train tracks
+            row["text"].update({(best_group, m): NOT_APPLICABLE for m in ("bLT", "aLT", "gap")})
         for track in all_tracks:
             res = bot_result(ctx.data.baselines, bot, ref, track)
             row["values"][("General", track)] = res["bLT"]
-            row["text"][("General", track)] = (
-                DASH if res["status"] == "missing"
-                else "DNF" if res["status"] == "DNF" else fmt_lap(res["bLT"]))
+            row["text"][("General", track)] = fmt_lap(
+                res["bLT"], NOT_DRIVEN if res["status"] == "missing" else DNF)
     if any(t in ctx.limits for t in all_tracks):
         row = table.add_row(LIMIT_LABEL, "limit")
         if len(trains) == 1:
             limit = ctx.limits.get(trains[0], math.nan)
             _fill_single(row, best_group, limit, "ok" if np.isfinite(limit) else "missing",
                          limit, ["bLT", "aLT", "gap"])
+        else:
+            row["text"].update({(best_group, m): NOT_APPLICABLE for m in ("bLT", "aLT", "gap")})
         for track in all_tracks:
             limit = ctx.limits.get(track, math.nan)
             row["values"][("General", track)] = limit
-            row["text"][("General", track)] = fmt_lap(limit)
+            row["text"][("General", track)] = fmt_lap(limit, NOT_DRIVEN)
     return table
 
 
@@ -530,14 +561,18 @@ def table3(ctx: Context) -> ReportTable:
 
 
 def comparisons(table_1: ReportTable) -> ReportTable:
-    """For every Table 1 column: P(the leader by aLT beats each other entrant in one run)."""
+    """For every Table 1 column: P(the leader by aLT beats each other entrant in one run).
+
+    The leader is a row of its own ("leader"), so that a long entrant label never widens a
+    column heading.
+    """
     table = ReportTable(
         key="comparisons", title="Probability of improvement: P(leader faster than row)",
         caption=(
-            "For each part, track and line: probability that a run of the entrant with the best "
-            "aLT has a faster best lap than a run of the row's entrant (Mann-Whitney U / "
-            "(n_a n_b), 95% bootstrap CI, two-sided U test p-value). Runs without a clean lap "
-            "are left out."
+            "For each part, track and line: probability that a run of the leader (the entrant "
+            "with the best aLT) has a faster best lap than a run of the row's entrant "
+            "(Mann-Whitney U / (n_a n_b), 95% bootstrap CI, two-sided U test p-value). Runs "
+            "without a clean lap are left out."
         ),
         groups=[], metrics={},
     )
@@ -550,22 +585,33 @@ def comparisons(table_1: ReportTable) -> ReportTable:
         if len(recs) < 2:
             continue
         leader = min(recs, key=lambda r: r["aLT"])
-        title = f"{group} (leader {leader['row']})"
+        title = group
         table.groups.append(title)
         table.metrics[title] = ["P(faster)", "95% CI", "p"]
-        for rec in recs:
-            if rec is leader:
-                continue
+        for rec in sorted(recs, key=lambda r: r is not leader):
             row = rows.get(rec["row"]) or table.add_row(rec["row"], "entrant")
             rows[rec["row"]] = row
+            if rec is leader:
+                row["text"].update({(title, "P(faster)"): LEADER, (title, "95% CI"): NOT_APPLICABLE,
+                                    (title, "p"): NOT_APPLICABLE})
+                continue
             cmp_ = stats.compare(leader["run_best_s"], rec["run_best_s"])
             row["values"][(title, "P(faster)")] = cmp_.prob
+            row["values"][(title, "95% CI")] = ci_value(cmp_.low, cmp_.high)
+            row["values"][(title, "p")] = cmp_.p_value
             row["text"][(title, "P(faster)")] = f"{cmp_.prob:.2f}"
-            row["text"][(title, "95% CI")] = fmt_ci(cmp_.low, cmp_.high)
+            row["text"][(title, "95% CI")] = fmt_ci(cmp_.low, cmp_.high, NOT_APPLICABLE)
             row["text"][(title, "p")] = f"{cmp_.p_value:.3f}" if np.isfinite(cmp_.p_value) \
-                else DASH
+                else NOT_APPLICABLE
             table.records.append({"group": group, "leader": leader["row"], "row": rec["row"],
                                   **cmp_.as_dict()})
+    status = {(r["group"], r["row"]): r["status"] for r in table_1.records}
+    for group in table.groups:  # an entrant not compared in a column says why
+        for label, row in rows.items():
+            why = {None: NOT_RUN, "DNF": DNF, "missing": NO_RESULT}.get(
+                status.get((group, label)), NOT_APPLICABLE)
+            for metric in table.metrics[group]:
+                row["text"].setdefault((group, metric), why)
     if not table.groups:
         table.notes.append("no column has two entrants with clean laps to compare")
     return table
