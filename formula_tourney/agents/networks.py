@@ -7,8 +7,8 @@ the action joins after the first hidden layer. The LSTM critic (paper, "LSTM cri
 places its LSTM after the concatenation of the state stream and the action, over the window of
 the last w (state, action) pairs; only the critic is recurrent, as the paper found an LSTM actor
 unstable. Beyond the paper, TD3 and SAC use :class:`TwinCritic` (two MLP critics for clipped
-double-Q) and SAC the :class:`SquashedGaussianActor` (tanh-squashed Gaussian, mapped affinely
-onto the same box).
+double-Q), SAC and CrossQ the :class:`SquashedGaussianActor` (tanh-squashed Gaussian, mapped
+affinely onto the same box), and CrossQ the :class:`BNTwinCritic` (batch-normalised critics).
 """
 
 from __future__ import annotations
@@ -220,6 +220,66 @@ class TwinCritic(nn.Module):
         q1, q1_pi = self.q1.q_pair(obs_window, action, policy_action)
         q2, q2_pi = self.q2.q_pair(obs_window, action, policy_action)
         return torch.stack([q1, q2]), torch.stack([q1_pi, q2_pi])
+
+
+class BNCritic(nn.Module):
+    """CrossQ's Q(s, a) (Bhatt et al. 2024): [flattened window, a] -> BN -> (Linear -> BN ->
+    ReLU) x 2 -> Q.
+
+    Batch normalisation on the input and after each hidden layer; in training mode it
+    normalises by the batch's statistics, so the CrossQ update feeds (s, a) and (s', a') as one
+    joint batch and both halves see the same normalisation. In eval mode (the actor loss,
+    acting) it uses the running statistics (``momentum`` per training pass).
+    """
+
+    recurrent = False
+
+    def __init__(
+        self,
+        obs_dim: int,
+        action_dim: int = 3,
+        window: int = 1,
+        hidden: tuple[int, int] = (256, 256),
+        momentum: float = 0.01,
+    ) -> None:
+        super().__init__()
+        self.window = window
+        self.bn_in = nn.BatchNorm1d(obs_dim * window + action_dim, momentum=momentum)
+        self.l1 = _fan_in_init(nn.Linear(obs_dim * window + action_dim, hidden[0]))
+        self.bn1 = nn.BatchNorm1d(hidden[0], momentum=momentum)
+        self.l2 = _fan_in_init(nn.Linear(hidden[0], hidden[1]))
+        self.bn2 = nn.BatchNorm1d(hidden[1], momentum=momentum)
+        self.out = _final_init(nn.Linear(hidden[1], 1))
+
+    def forward(self, obs_window: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """Q values ``(B,)``."""
+        x = self.bn_in(torch.cat([obs_window[:, -self.window :].flatten(1), action], dim=1))
+        x = torch.relu(self.bn1(self.l1(x)))
+        x = torch.relu(self.bn2(self.l2(x)))
+        return self.out(x).squeeze(1)
+
+
+class BNTwinCritic(nn.Module):
+    """CrossQ's Q1 and Q2: two :class:`BNCritic` s, values stacked ``(2, B)`` (row 0 is Q1)."""
+
+    recurrent = False
+
+    def __init__(
+        self,
+        obs_dim: int,
+        action_dim: int = 3,
+        window: int = 1,
+        hidden: tuple[int, int] = (256, 256),
+        momentum: float = 0.01,
+    ) -> None:
+        super().__init__()
+        self.window = window
+        self.q1 = BNCritic(obs_dim, action_dim, window, hidden, momentum)
+        self.q2 = BNCritic(obs_dim, action_dim, window, hidden, momentum)
+
+    def forward(self, obs_window: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """``(2, B)``: [Q1(s, a); Q2(s, a)]."""
+        return torch.stack([self.q1(obs_window, action), self.q2(obs_window, action)])
 
 
 class SquashedGaussianActor(nn.Module):
