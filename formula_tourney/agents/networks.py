@@ -23,6 +23,7 @@ FINAL_INIT = 3e-3  # Lillicrap et al.: small final layers so initial outputs and
 # the action box as centre + scale * tanh(u): steer in [-1, 1], throttle and brake in [0, 1]
 ACTION_CENTRE = (0.0, 0.5, 0.5)
 ACTION_SCALE = (1.0, 0.5, 0.5)
+PEDAL_BOX = ((0.0, 0.0), (1.0, 1.0))  # centre and scale of the pedal action mode's box
 LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0  # SAC's clamp of log sigma (Haarnoja et al.'s code, SB3)
 
 
@@ -40,8 +41,15 @@ def _final_init(layer: nn.Linear) -> nn.Linear:
     return layer
 
 
+def pedal_squash(action_dim: int):  # type: ignore[no-untyped-def]
+    """The pedal columns' squash onto the env's box: sigmoid onto [0, 1] for (steer, throttle,
+    brake), tanh onto [-1, 1] for the pedal action mode's (steer, pedal)."""
+    return torch.sigmoid if action_dim == 3 else torch.tanh
+
+
 class Actor(nn.Module):
-    """mu(s): flattened window -> hidden -> (tanh steer, sigmoid throttle, sigmoid brake)."""
+    """mu(s): flattened window -> hidden -> (tanh steer, sigmoid throttle, sigmoid brake), or
+    (tanh steer, tanh pedal) in the pedal action mode (``action_dim = 2``)."""
 
     def __init__(
         self,
@@ -50,23 +58,27 @@ class Actor(nn.Module):
         hidden: tuple[int, int] = (400, 300),
         throttle_bias: float = 0.0,
         brake_bias: float = 0.0,
+        action_dim: int = 3,
     ) -> None:
         super().__init__()
         self.window = window
         self.l1 = _fan_in_init(nn.Linear(obs_dim * window, hidden[0]))
         self.l2 = _fan_in_init(nn.Linear(hidden[0], hidden[1]))
-        self.out = _final_init(nn.Linear(hidden[1], 3))
+        self.out = _final_init(nn.Linear(hidden[1], action_dim))
+        self.squash_pedals = pedal_squash(action_dim)
         with torch.no_grad():
-            # pedals start near chosen pressures: at 0.5 throttle and 0.5 brake the car never moves
+            # pedals start near chosen pressures: at 0.5 throttle and 0.5 brake the car never
+            # moves; the one pedal starts at tanh(throttle_bias) of throttle
             self.out.bias[1] += throttle_bias
-            self.out.bias[2] += brake_bias
+            if action_dim == 3:
+                self.out.bias[2] += brake_bias
 
     def forward(self, obs_window: torch.Tensor) -> torch.Tensor:
         x = obs_window[:, -self.window :].flatten(1)
         x = torch.relu_(self.l1(x))
         x = torch.relu_(self.l2(x))
         z = self.out(x)
-        return torch.cat([torch.tanh(z[:, :1]), torch.sigmoid(z[:, 1:])], dim=1)
+        return torch.cat([torch.tanh(z[:, :1]), self.squash_pedals(z[:, 1:])], dim=1)
 
 
 def addmm_operands(layer: nn.Linear) -> tuple[torch.Tensor, torch.Tensor]:
@@ -83,10 +95,14 @@ class ActorPass:
     no ``cat``, no fresh tensors: at batch 1 those cost more than the arithmetic.
     """
 
-    def __init__(self, batch: int, hidden: tuple[int, int], like: torch.Tensor) -> None:
+    def __init__(
+        self, batch: int, hidden: tuple[int, int], like: torch.Tensor, action_dim: int = 3
+    ) -> None:
         self.batch = batch
         self.a1, self.a2 = like.new_empty(batch, hidden[0]), like.new_empty(batch, hidden[1])
-        self.z, self.pi = like.new_empty(batch, 3), like.new_empty(batch, 3)
+        self.z, self.pi = like.new_empty(batch, action_dim), like.new_empty(batch, action_dim)
+        self.sigmoid_pedals = action_dim == 3
+        self.squash_pedals = pedal_squash(action_dim)
         # steer and pedal columns as views made once (a slice costs ~1.4 us per call)
         self.z_steer, self.z_pedals = self.z[:, :1], self.z[:, 1:]
         self.pi_steer, self.pi_pedals = self.pi[:, :1], self.pi[:, 1:]
@@ -100,7 +116,7 @@ class ActorPass:
         torch.relu_(torch.addmm(b2, self.a1, w2, out=self.a2))
         torch.addmm(b3, self.a2, w3, out=self.z)
         torch.tanh(self.z_steer, out=self.pi_steer)
-        torch.sigmoid(self.z_pedals, out=self.pi_pedals)
+        self.squash_pedals(self.z_pedals, out=self.pi_pedals)
         return self.pi
 
 
@@ -111,11 +127,12 @@ class GreedyAct:
         self.window = actor.window
         self.layers = tuple(addmm_operands(m) for m in (actor.l1, actor.l2, actor.out))
         hidden = (actor.l1.out_features, actor.l2.out_features)
-        self.forward = ActorPass(1, hidden, actor.l1.weight)
+        self.forward = ActorPass(1, hidden, actor.l1.weight, actor.out.out_features)
 
     @torch.no_grad()
     def __call__(self, obs_window: np.ndarray) -> np.ndarray:
-        """Action ``(3,)`` for one window ``(w, obs_dim)`` (the actor reads its last rows)."""
+        """Action ``(action_dim,)`` for one window ``(w, obs_dim)`` (the actor reads its last
+        rows)."""
         x = torch.as_tensor(obs_window, dtype=torch.float32, device=self.forward.pi.device)
         pi = self.forward(x[-self.window :].reshape(1, -1), self.layers)
         return pi[0].cpu().numpy().copy()
@@ -286,7 +303,8 @@ class SquashedGaussianActor(nn.Module):
     """SAC's pi(a|s): u ~ N(m(s), sigma(s)^2), a = c + k tanh(u) onto the action box.
 
     ``c = (0, 0.5, 0.5)`` and ``k = (1, 0.5, 0.5)`` map tanh's (-1, 1) onto steer (-1..1) and the
-    pedals (0..1). The density of ``a`` is that of ``u`` divided by the map's Jacobian
+    pedals (0..1); in the pedal action mode ``c = (0, 0)``, ``k = (1, 1)``. The density of ``a``
+    is that of ``u`` divided by the map's Jacobian
     ``k (1 - tanh(u)^2)`` per dimension (Haarnoja et al. 2018, appendix C, with the affine factor
     ``k``). ``forward`` is the greedy action ``c + k tanh(m)``; since ``(1 + tanh(z/2)) / 2 =
     sigmoid(z)``, halving the pedal bias inits starts the mean pedals where the deterministic
@@ -300,18 +318,23 @@ class SquashedGaussianActor(nn.Module):
         hidden: tuple[int, int] = (256, 256),
         throttle_bias: float = 0.0,
         brake_bias: float = 0.0,
+        action_dim: int = 3,
     ) -> None:
         super().__init__()
         self.window = window
         self.l1 = _fan_in_init(nn.Linear(obs_dim * window, hidden[0]))
         self.l2 = _fan_in_init(nn.Linear(hidden[0], hidden[1]))
-        self.mean = _final_init(nn.Linear(hidden[1], 3))
-        self.log_std = _final_init(nn.Linear(hidden[1], 3))
+        self.mean = _final_init(nn.Linear(hidden[1], action_dim))
+        self.log_std = _final_init(nn.Linear(hidden[1], action_dim))
+        centre, scale = (ACTION_CENTRE, ACTION_SCALE) if action_dim == 3 else PEDAL_BOX
         with torch.no_grad():
-            self.mean.bias[1] += throttle_bias / 2
-            self.mean.bias[2] += brake_bias / 2
-        self.register_buffer("centre", torch.tensor(ACTION_CENTRE), persistent=False)
-        self.register_buffer("scale", torch.tensor(ACTION_SCALE), persistent=False)
+            if action_dim == 3:
+                self.mean.bias[1] += throttle_bias / 2
+                self.mean.bias[2] += brake_bias / 2
+            else:  # the pedal starts at tanh(throttle_bias), as the deterministic actor's
+                self.mean.bias[1] += throttle_bias
+        self.register_buffer("centre", torch.tensor(centre), persistent=False)
+        self.register_buffer("scale", torch.tensor(scale), persistent=False)
 
     def distribution(self, obs_window: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(m, log sigma)`` of the pre-squash Gaussian, log sigma clamped to [-20, 2]."""

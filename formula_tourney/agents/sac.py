@@ -78,7 +78,8 @@ class SACAgent(Agent):
     def _make_actor(self) -> nn.Module:
         cfg = self.cfg
         return SquashedGaussianActor(self.obs_dim, self.actor_window, cfg.hidden,
-                                     cfg.throttle_bias_init, cfg.brake_bias_init)  # fmt: skip
+                                     cfg.throttle_bias_init, cfg.brake_bias_init,
+                                     self.action_dim)  # fmt: skip
 
     def _make_critic(self) -> nn.Module:
         return TwinCritic(self.obs_dim, self.action_dim, self.cfg.window, self.cfg.hidden)

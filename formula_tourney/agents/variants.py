@@ -3,8 +3,8 @@
 A variant is a configuration, never a copy of an algorithm: WIN1/4/8 set the window ``w`` fed to
 actor and critic, LSTM4/8 switch the DDPG critic to the LSTM critic over a window of ``w``
 states and actions, MS2/3/4 set the n of the multi-step target, PER40k/PER1M switch on
-prioritized replay with that buffer size; TD3 and SAC (beyond the paper) are variants of their
-own families. ``algorithm`` names the family (``families.py``), ``family`` the group a
+prioritized replay with that buffer size; TD3, SAC and CrossQ (beyond the paper) are variants
+of their own families. ``algorithm`` names the family (``families.py``), ``family`` the group a
 tournament promotes the best entrant of. :class:`AgentConfig` joins the settings every family
 shares (:class:`SharedSettings`) with each family's own (declared in its module), under flat
 keys, so tournament files, presets and ``train --set`` name them the same way; a family's
@@ -34,15 +34,16 @@ class SharedSettings(BaseModel):
     family: str = Field(
         "DDPG",
         description="Tournament family: the paper's DDPG (the WIN variants), LSTM, MS or PER, or "
-        "TD3 or SAC beyond the paper; tournaments promote the best entrant of each family. It "
-        "must be one its algorithm's variants may carry.",
+        "TD3, SAC or CrossQ beyond the paper; tournaments promote the best entrant of each "
+        "family. It must be one its algorithm's variants may carry.",
     )
     algorithm: str = Field(
         "ddpg",
         description="Algorithm family (agents.families): ddpg (the paper's: one critic, "
         "deterministic actor), td3 (twin critics with clipped double-Q, target policy "
-        "smoothing, delayed actor) or sac (squashed Gaussian actor, twin critics, entropy "
-        "bonus with a learned temperature).",
+        "smoothing, delayed actor), sac (squashed Gaussian actor, twin critics, entropy "
+        "bonus with a learned temperature) or crossq (SAC with batch-normalised critics and no "
+        "target networks).",
     )
     # --- variant axes -------------------------------------------------------------------------
     window: int = Field(
@@ -261,7 +262,7 @@ BEYOND_PAPER_VARIANTS: dict[str, AgentConfig] = {
     ),
     # CrossQ (Bhatt et al. 2024, sb3-contrib's defaults): lr 1e-3 everywhere, actor delay 3,
     # Adam beta1 0.5, BN momentum 0.01 (the field defaults); 256-256 critics instead of the
-    # paper's 2048-2048 wide ones, which cost ~50x the FLOPs per update on a CPU
+    # paper's 2048-2048 ones, ~57x the multiply-adds per update on a CPU
     "CrossQ": AgentConfig(
         name="CrossQ",
         family="CrossQ",
