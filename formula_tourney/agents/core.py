@@ -200,6 +200,9 @@ class Agent:
     uses_generator: ClassVar[bool] = False
     checkpoint_keys: ClassVar[tuple[str, ...]] = ()
     """Checkpoint keys beyond :data:`CHECKPOINT_KEYS` that this family's ``state_dict`` writes."""
+    critic_layer_norm_applies: ClassVar[bool] = True
+    """Whether the setting ``critic_layer_norm`` reaches this family's critics (its MLP critics
+    take it; a family with other critics says False and the setting is refused on it)."""
     mlp_backend: ClassVar[bool] = False
     """Whether the hand-written backend (``mlp_update.py``, DDPG's equations) may run this
     family's update when its networks are the MLP actor and critic."""
@@ -276,7 +279,8 @@ class Agent:
         # the hand-written backend covers DDPG's update of the deterministic actor with the MLP
         # critic; every other family and pair of networks updates through autograd
         self._mlp_update: MLPUpdate | None = None
-        mlp_nets = isinstance(self.critic, MLPCritic) and isinstance(self.actor, Actor)
+        mlp_nets = (isinstance(self.critic, MLPCritic) and not self.critic.layer_norm
+                    and isinstance(self.actor, Actor))  # fmt: skip
         if self.mlp_backend and mlp_nets:
             assert self.actor_target is not None
             self._mlp_update = MLPUpdate(

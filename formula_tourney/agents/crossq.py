@@ -75,6 +75,7 @@ class CrossQAgent(SACAgent):
     tourney_families = ("CrossQ",)
     settings = CrossQSettings
     mlp_backend = False
+    critic_layer_norm_applies = False  # batch-normalised critics
 
     def __init__(self, cfg: Any, obs_dim: int, action_dim: int = 3, device: str = "cpu",
                  seed: int | None = None) -> None:  # fmt: skip

@@ -139,7 +139,13 @@ class GreedyAct:
 
 
 class MLPCritic(nn.Module):
-    """Q(s, a): flattened state window -> h1, [h1, a] -> h2 -> Q (action at the second layer)."""
+    """Q(s, a): flattened state window -> h1, [h1, a] -> h2 -> Q (action at the second layer).
+
+    With ``layer_norm`` (beyond the paper: RLPD, Ball et al. 2023) each hidden layer's
+    pre-activation passes a LayerNorm before its ReLU, which bounds the critic's features and so
+    its extrapolation to actions the buffer never holds; off, the norms are identities and the
+    critic is Lillicrap's, parameter for parameter.
+    """
 
     recurrent = False
 
@@ -149,8 +155,10 @@ class MLPCritic(nn.Module):
         action_dim: int = 3,
         window: int = 1,
         hidden: tuple[int, int] = (400, 300),
+        layer_norm: bool = False,
     ) -> None:
         super().__init__()
+        self.layer_norm = layer_norm
         self.window = window
         self.l1 = _fan_in_init(nn.Linear(obs_dim * window, hidden[0]))
         # the second layer's weight is split into its h1 and action columns: W2 [h1, a] =
@@ -163,6 +171,8 @@ class MLPCritic(nn.Module):
             self.l2.bias.copy_(l2.bias)
             self.l2_action.weight.copy_(l2.weight[:, hidden[0] :])
         self.out = _final_init(nn.Linear(hidden[1], 1))
+        self.norm1: nn.Module = nn.LayerNorm(hidden[0]) if layer_norm else nn.Identity()
+        self.norm2: nn.Module = nn.LayerNorm(hidden[1]) if layer_norm else nn.Identity()
 
     def forward(
         self,
@@ -171,8 +181,8 @@ class MLPCritic(nn.Module):
         past_actions: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Q values ``(B,)``; ``past_actions`` is ignored (only the LSTM critic reads it)."""
-        h = torch.relu_(self.l1(obs_window[:, -self.window :].flatten(1)))
-        h = torch.relu_(torch.addmm(self.l2(h), action, self.l2_action.weight.t()))
+        h = torch.relu_(self.norm1(self.l1(obs_window[:, -self.window :].flatten(1))))
+        h = torch.relu_(self.norm2(torch.addmm(self.l2(h), action, self.l2_action.weight.t())))
         return self.out(h).squeeze(1)
 
     def q_pair(
@@ -188,11 +198,13 @@ class MLPCritic(nn.Module):
         the critic costs ~1% instead of ~20% of an update's FLOPs. The second value is detached
         from the state path, so the actor loss reaches the actor through the action alone.
         """
-        h = torch.relu_(self.l1(obs_window[:, -self.window :].flatten(1)))
+        h = torch.relu_(self.norm1(self.l1(obs_window[:, -self.window :].flatten(1))))
         base = self.l2(h)
         w_a = self.l2_action.weight.t()
-        q = self.out(torch.relu_(torch.addmm(base, action, w_a))).squeeze(1)
-        q_pi = self.out(torch.relu_(torch.addmm(base.detach(), policy_action, w_a))).squeeze(1)
+        q = self.out(torch.relu_(self.norm2(torch.addmm(base, action, w_a)))).squeeze(1)
+        q_pi = self.out(
+            torch.relu_(self.norm2(torch.addmm(base.detach(), policy_action, w_a)))
+        ).squeeze(1)
         return q, q_pi
 
 
@@ -211,11 +223,13 @@ class TwinCritic(nn.Module):
         action_dim: int = 3,
         window: int = 1,
         hidden: tuple[int, int] = (400, 300),
+        layer_norm: bool = False,
     ) -> None:
         super().__init__()
         self.window = window
-        self.q1 = MLPCritic(obs_dim, action_dim, window, hidden)
-        self.q2 = MLPCritic(obs_dim, action_dim, window, hidden)
+        self.layer_norm = layer_norm
+        self.q1 = MLPCritic(obs_dim, action_dim, window, hidden, layer_norm)
+        self.q2 = MLPCritic(obs_dim, action_dim, window, hidden, layer_norm)
 
     def forward(
         self,

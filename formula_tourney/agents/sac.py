@@ -82,7 +82,9 @@ class SACAgent(Agent):
                                      self.action_dim)  # fmt: skip
 
     def _make_critic(self) -> nn.Module:
-        return TwinCritic(self.obs_dim, self.action_dim, self.cfg.window, self.cfg.hidden)
+        cfg = self.cfg
+        return TwinCritic(self.obs_dim, self.action_dim, cfg.window, cfg.hidden,
+                          cfg.critic_layer_norm)  # fmt: skip
 
     def explore(self, obs_window: np.ndarray) -> np.ndarray:
         """A sample ``a ~ pi(.|s)`` for one window (the greedy action is the squashed mean

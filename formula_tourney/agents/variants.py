@@ -100,6 +100,14 @@ class SharedSettings(BaseModel):
     hidden: tuple[int, int] = Field(
         (400, 300), description="Hidden units of the actor and the MLP critic (Lillicrap 400-300)."
     )
+    critic_layer_norm: bool = Field(
+        False,
+        description="Beyond the paper: a LayerNorm before each hidden ReLU of the MLP critics "
+        "(DDPG's, TD3's and SAC's; RLPD, Ball et al. 2023), which bounds Q's extrapolation to "
+        "actions the buffer never holds. DDPG then updates through autograd (the hand-written "
+        "backend has no norm). Not with lstm_critic, nor CrossQ's batch-norm critics.",
+        json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
+    )
     learning_starts: int = Field(
         1_000, ge=0, description="Environment steps of pure exploration before updates begin."
     )
@@ -195,6 +203,11 @@ class AgentConfig(*reversed([f.settings for f in ALGORITHMS.values()]), SharedSe
                 f"unknown algorithm {self.algorithm!r}; known: {', '.join(ALGORITHMS)}"
             )
         own = ALGORITHMS[self.algorithm]
+        if self.critic_layer_norm and (self.lstm_critic or not own.critic_layer_norm_applies):
+            raise ValueError(
+                "critic_layer_norm applies to the MLP critics (ddpg without lstm_critic, td3, "
+                f"sac), not {'lstm_critic' if self.lstm_critic else self.algorithm}"
+            )
         if self.family not in own.tourney_families:
             raise ValueError(
                 f"family {self.family} does not fit algorithm {self.algorithm}; allowed: "
