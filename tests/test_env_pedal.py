@@ -24,6 +24,7 @@ from formula_tourney.sim.env import (
     pedal_action,
 )
 from formula_tourney.training import loop
+from formula_tourney.training.budget import warm_up
 from formula_tourney.training.run_spec import build_run_spec
 
 torch.set_num_threads(1)
@@ -136,3 +137,9 @@ def test_a_pedal_run_trains_and_tests_with_two_axis_actions_labelled_beyond_pape
     eps = pd.read_parquet(tmp_path / "job" / "episodes.parquet")
     assert len(eps) == 3 and eps.updates.iloc[-1] > 0
     assert len(pd.read_parquet(tmp_path / "job" / "tests.parquet")) == 1
+
+
+def test_the_budget_warm_up_steps_a_pedal_env(ring_tracks) -> None:
+    spec = build_run_spec(variant="WIN1", train_tracks=["ringA"],
+                          env_overrides={"action_mode": "pedal"})  # fmt: skip
+    warm_up(spec)  # its half throttle as (steer 0, pedal 0.5), not a three-axis action
