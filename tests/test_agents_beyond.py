@@ -341,6 +341,8 @@ NEW_FIELDS = {
     "algorithm": "ddpg", "policy_noise": 0.2, "noise_clip": 0.5, "policy_delay": 2,
     "alpha_init": 1.0, "alpha_lr": 3e-4, "target_entropy": None, "brake_explore_hold_steps": 1,
     "crash_penalty": 0.0, "epsilon_floor": 0.0, "eval_ema_updates": 0,
+    "bn_momentum": 0.01, "crossq_adam_beta1": 0.5, "crossq_policy_delay": 3,
+    "critic_layer_norm": False,
 }  # fmt: skip
 # AgentConfig().model_dump(mode="json") and each paper variant's changes from it, before
 # TD3 and SAC existed
@@ -379,8 +381,8 @@ def test_the_papers_ten_configs_are_unchanged() -> None:
 
 
 def test_td3_and_sac_are_registered_beyond_the_paper() -> None:
-    assert list(BEYOND_PAPER_VARIANTS) == ["TD3", "SAC"]
-    assert list(ALL_VARIANTS) == [*VARIANTS, "TD3", "SAC"]
+    assert list(BEYOND_PAPER_VARIANTS) == ["TD3", "SAC", "CrossQ"]
+    assert list(ALL_VARIANTS) == [*VARIANTS, "TD3", "SAC", "CrossQ"]
     td3, sac = get_variant("TD3"), get_variant("SAC")
     assert (td3.family, td3.algorithm, sac.family, sac.algorithm) == ("TD3", "td3", "SAC", "sac")
     assert td3.beyond_paper and sac.beyond_paper and td3.twin_critics and sac.twin_critics
@@ -440,7 +442,7 @@ train_tracks = ["oval"]
     ("entrants", "expected"),
     [
         ('"all"', ["FAST4", "SAC4", *VARIANTS]),
-        ('"all+beyond"', ["FAST4", "SAC4", *VARIANTS, "TD3", "SAC"]),
+        ('"all+beyond"', ["FAST4", "SAC4", *VARIANTS, "TD3", "SAC", "CrossQ"]),
         ('["TD3", "SAC4"]', ["TD3", "SAC4"]),
     ],
 )

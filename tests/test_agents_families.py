@@ -13,6 +13,7 @@ from pydantic.fields import FieldInfo
 from formula_tourney.agents.buffers import ReplayBuffer
 from formula_tourney.agents.checkpoints import load_checkpoint, save_checkpoint
 from formula_tourney.agents.core import Agent, FamilySettings
+from formula_tourney.agents.crossq import CrossQAgent
 from formula_tourney.agents.ddpg import DDPGAgent
 from formula_tourney.agents.families import ALGORITHMS, get_family, make_agent
 from formula_tourney.agents.networks import MLPCritic
@@ -64,8 +65,10 @@ def _batch(seed: int = 0):  # type: ignore[no-untyped-def]
     return buf.sample(8)
 
 
-def test_the_registry_names_the_three_families_in_order() -> None:
-    assert {"ddpg": DDPGAgent, "td3": TD3Agent, "sac": SACAgent} == ALGORITHMS
+def test_the_registry_names_the_four_families_in_order() -> None:
+    assert {
+        "ddpg": DDPGAgent, "td3": TD3Agent, "sac": SACAgent, "crossq": CrossQAgent
+    } == ALGORITHMS
     for name, variant in ALL_VARIANTS.items():
         assert (
             type(make_agent(variant.model_copy(update={"hidden": (8, 8)}), D))
@@ -94,9 +97,10 @@ def test_a_family_registered_by_name_trains_and_round_trips(bandit, tmp_path: Pa
 
 
 def test_an_unknown_family_is_a_clear_error(tmp_path: Path) -> None:
-    with pytest.raises(UserInputError, match=r"unknown algorithm 'ppo'; known: ddpg, td3, sac"):
+    known = r"unknown algorithm 'ppo'; known: ddpg, td3, sac, crossq"
+    with pytest.raises(UserInputError, match=known):
         get_family("ppo")
-    with pytest.raises(ValueError, match=r"unknown algorithm 'ppo'; known: ddpg, td3, sac"):
+    with pytest.raises(ValueError, match=known):
         AgentConfig(algorithm="ppo")
     state = DDPGAgent(get_variant("WIN1", {"hidden": (8, 8)}), D, seed=0).state_dict()
     state["config"]["algorithm"] = "ppo"
@@ -143,7 +147,7 @@ def test_a_familys_settings_are_its_own(algorithm: str, key: str) -> None:
 def test_each_setting_is_declared_once() -> None:
     """The shared settings and every family's own are disjoint, and AgentConfig is their union."""
     own = [k for family in ALGORITHMS.values() for k in family.settings.model_fields]
-    assert len(own) == len(set(own)) == 9
+    assert len(own) == len(set(own)) == 12
     assert not set(own) & set(SharedSettings.model_fields)
     assert set(AgentConfig.model_fields) == set(SharedSettings.model_fields) | set(own)
     assert all(AgentConfig.model_fields[k].description for k in AgentConfig.model_fields)

@@ -70,7 +70,7 @@ def test_config_is_checked():
         "max_steps", "terminate_off_track", "terminate_backwards", "terminate_slow",
         "slow_speed_kmh", "slow_patience_steps", "damage_weight", "random_start",
         "start_speed_mps", "car"}
-    bad = [({"trak": "oval"}, "unknown config key .trak.; known keys: car,"),
+    bad = [({"trak": "oval"}, "unknown config key .trak.; known keys: action_mode, car,"),
            ({"physics_hz": 50}, "physics_hz"), ({"max_steps": 0}, "max_steps"),
            ({"lac": "yes"}, "lac"),
            ({"reference_line": np.zeros(5)}, "reference_line"),

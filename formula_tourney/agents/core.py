@@ -39,7 +39,7 @@ from torch import nn
 from formula_tourney.agents.buffers import ReplayBatch
 from formula_tourney.agents.mlp_update import BCLoss, MLPUpdate
 from formula_tourney.agents.networks import Actor, GreedyAct, MLPCritic
-from formula_tourney.agents.noise import ACTION_HIGH, ACTION_LOW
+from formula_tourney.agents.noise import action_box
 from formula_tourney.errors import UserInputError
 
 
@@ -200,6 +200,9 @@ class Agent:
     uses_generator: ClassVar[bool] = False
     checkpoint_keys: ClassVar[tuple[str, ...]] = ()
     """Checkpoint keys beyond :data:`CHECKPOINT_KEYS` that this family's ``state_dict`` writes."""
+    critic_layer_norm_applies: ClassVar[bool] = True
+    """Whether the setting ``critic_layer_norm`` reaches this family's critics (its MLP critics
+    take it; a family with other critics says False and the setting is refused on it)."""
     mlp_backend: ClassVar[bool] = False
     """Whether the hand-written backend (``mlp_update.py``, DDPG's equations) may run this
     family's update when its networks are the MLP actor and critic."""
@@ -270,12 +273,14 @@ class Agent:
             self._generator.manual_seed(
                 seed if seed is not None else int(torch.randint(2**62, ()).item())
             )
-        self._action_low = torch.as_tensor(ACTION_LOW, device=self.device)
-        self._action_high = torch.as_tensor(ACTION_HIGH, device=self.device)
+        low, high = action_box(self.action_dim)  # the env's box: paper or pedal action mode
+        self._action_low = torch.as_tensor(low, device=self.device)
+        self._action_high = torch.as_tensor(high, device=self.device)
         # the hand-written backend covers DDPG's update of the deterministic actor with the MLP
         # critic; every other family and pair of networks updates through autograd
         self._mlp_update: MLPUpdate | None = None
-        mlp_nets = isinstance(self.critic, MLPCritic) and isinstance(self.actor, Actor)
+        mlp_nets = (isinstance(self.critic, MLPCritic) and not self.critic.layer_norm
+                    and isinstance(self.actor, Actor))  # fmt: skip
         if self.mlp_backend and mlp_nets:
             assert self.actor_target is not None
             self._mlp_update = MLPUpdate(
@@ -312,7 +317,7 @@ class Agent:
         """The deterministic actor mu(s) over the actor's window."""
         cfg = self.cfg
         return Actor(self.obs_dim, self.actor_window, cfg.hidden, cfg.throttle_bias_init,
-                     cfg.brake_bias_init)  # fmt: skip
+                     cfg.brake_bias_init, self.action_dim)  # fmt: skip
 
     def _make_critic(self) -> nn.Module:
         raise NotImplementedError

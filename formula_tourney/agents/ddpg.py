@@ -68,7 +68,8 @@ class DDPGAgent(Agent):
         if cfg.lstm_critic:
             return LSTMCritic(self.obs_dim, self.action_dim, cfg.window, cfg.lstm_state_units,
                               cfg.lstm_hidden, cfg.hidden[1])  # fmt: skip
-        return MLPCritic(self.obs_dim, self.action_dim, cfg.window, cfg.hidden)
+        return MLPCritic(self.obs_dim, self.action_dim, cfg.window, cfg.hidden,
+                         cfg.critic_layer_norm)  # fmt: skip
 
     @torch.no_grad()
     def target(

@@ -11,6 +11,7 @@ from __future__ import annotations
 from typing import Any
 
 from formula_tourney.agents.core import Agent
+from formula_tourney.agents.crossq import CrossQAgent
 from formula_tourney.agents.ddpg import DDPGAgent
 from formula_tourney.agents.sac import SACAgent
 from formula_tourney.agents.td3 import TD3Agent
@@ -20,6 +21,7 @@ ALGORITHMS: dict[str, type[Agent]] = {
     DDPGAgent.algorithm: DDPGAgent,
     TD3Agent.algorithm: TD3Agent,
     SACAgent.algorithm: SACAgent,
+    CrossQAgent.algorithm: CrossQAgent,
 }
 """Every registered family by its ``algorithm`` name; the paper's first."""
 

@@ -89,15 +89,17 @@ class _Workspace:
     ``y`` is formed), which keeps the working set small enough to stay in cache.
     """
 
-    def __init__(self, batch: int, h1a: int, h2a: int, h1c: int, h2c: int, w_out: torch.Tensor):
+    def __init__(self, batch: int, h1a: int, h2a: int, h1c: int, h2c: int, w_out: torch.Tensor,
+                 action_dim: int = 3):  # fmt: skip
         B = batch  # noqa: N806
         z = {"dtype": torch.float32, "device": w_out.device}
         self.batch = B
+        self.action_dim = action_dim
         # actor (also the target actor): its forward's buffers, and their gradients
-        self.actor = ActorPass(B, (h1a, h2a), w_out)
+        self.actor = ActorPass(B, (h1a, h2a), w_out, action_dim)
         self.a1, self.a2, self.pi = self.actor.a1, self.actor.a2, self.actor.pi
         self.ga1, self.ga2 = torch.empty(B, h1a, **z), torch.empty(B, h2a, **z)
-        self.gpi, self.gz = torch.empty(B, 3, **z), torch.empty(B, 3, **z)
+        self.gpi, self.gz = torch.empty(B, action_dim, **z), torch.empty(B, action_dim, **z)
         self.gpi_steer, self.gpi_pedals = self.gpi[:, :1], self.gpi[:, 1:]
         self.gz_steer, self.gz_pedals = self.gz[:, :1], self.gz[:, 1:]
         # critic: shared state path, then [Q(s, a); Q(s, mu(s))] stacked as 2B rows
@@ -111,7 +113,7 @@ class _Workspace:
         self.gq = torch.empty(B, 1, **z)  # dL(Q)/dQ(s, a)
         self.zeros = torch.zeros(B, 1, **z)  # addcmul's addend: gq in one operator
         self.y, self.td = torch.empty(B, 1, **z), torch.empty(B, 1, **z)
-        self.grad_a = torch.empty(B, 3, **z)
+        self.grad_a = torch.empty(B, action_dim, **z)
         self.stats = torch.zeros(5, **z)  # [4]: the cloning term, written only when it is on
         self.h2_q, self.h2_pi = self.h2[:B], self.h2[B:]
         self.m2_q, self.m2_pi = self.m2[:B], self.m2[B:]
@@ -130,7 +132,8 @@ class _Workspace:
         Q-filter's mask (rows, 1) and the term's scale, allocated once."""
         if self._bc is None or self._bc[0].shape[0] != rows:
             z = {"dtype": self.q.dtype, "device": self.q.device}
-            self._bc = (torch.empty(rows, 3, **z), torch.empty(rows, 1, **z), torch.empty((), **z))
+            self._bc = (torch.empty(rows, self.action_dim, **z), torch.empty(rows, 1, **z),
+                        torch.empty((), **z))  # fmt: skip
         return self._bc
 
 
@@ -167,11 +170,12 @@ class MLPUpdate:
             actor.l1.out_features, actor.l2.out_features,
             critic.l1.out_features, critic.l2.out_features,
         )  # fmt: skip
+        self.action_dim = actor.out.out_features
         self._ws: _Workspace | None = None
 
     def _workspace(self, batch: int) -> _Workspace:
         if self._ws is None or self._ws.batch != batch:
-            self._ws = _Workspace(batch, *self.sizes, self.c_out.w)
+            self._ws = _Workspace(batch, *self.sizes, self.c_out.w, self.action_dim)
         return self._ws
 
     # --- forward passes ------------------------------------------------------------------------
@@ -246,9 +250,9 @@ class MLPUpdate:
         if bc is not None:
             self._bc_gradient(ws, actions, bc)
         aten.tanh_backward.grad_input(ws.gpi_steer, ws.actor.pi_steer, grad_input=ws.gz_steer)
-        aten.sigmoid_backward.grad_input(
-            ws.gpi_pedals, ws.actor.pi_pedals, grad_input=ws.gz_pedals
-        )
+        pedals_backward = (aten.sigmoid_backward if ws.actor.sigmoid_pedals
+                           else aten.tanh_backward)  # the pedal action mode: tanh  # fmt: skip
+        pedals_backward.grad_input(ws.gpi_pedals, ws.actor.pi_pedals, grad_input=ws.gz_pedals)
         self._dense_backward(ws.gz, ws.gz_t, ws.a2, self.a_out)
         torch.mm(ws.gz, self.a_out.w, out=ws.ga2)
         aten.threshold_backward.grad_input(ws.ga2, ws.a2, 0, grad_input=ws.ga2)

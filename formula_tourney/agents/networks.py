@@ -7,8 +7,8 @@ the action joins after the first hidden layer. The LSTM critic (paper, "LSTM cri
 places its LSTM after the concatenation of the state stream and the action, over the window of
 the last w (state, action) pairs; only the critic is recurrent, as the paper found an LSTM actor
 unstable. Beyond the paper, TD3 and SAC use :class:`TwinCritic` (two MLP critics for clipped
-double-Q) and SAC the :class:`SquashedGaussianActor` (tanh-squashed Gaussian, mapped affinely
-onto the same box).
+double-Q), SAC and CrossQ the :class:`SquashedGaussianActor` (tanh-squashed Gaussian, mapped
+affinely onto the same box), and CrossQ the :class:`BNTwinCritic` (batch-normalised critics).
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ FINAL_INIT = 3e-3  # Lillicrap et al.: small final layers so initial outputs and
 # the action box as centre + scale * tanh(u): steer in [-1, 1], throttle and brake in [0, 1]
 ACTION_CENTRE = (0.0, 0.5, 0.5)
 ACTION_SCALE = (1.0, 0.5, 0.5)
+PEDAL_BOX = ((0.0, 0.0), (1.0, 1.0))  # centre and scale of the pedal action mode's box
 LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0  # SAC's clamp of log sigma (Haarnoja et al.'s code, SB3)
 
 
@@ -40,8 +41,15 @@ def _final_init(layer: nn.Linear) -> nn.Linear:
     return layer
 
 
+def pedal_squash(action_dim: int):  # type: ignore[no-untyped-def]
+    """The pedal columns' squash onto the env's box: sigmoid onto [0, 1] for (steer, throttle,
+    brake), tanh onto [-1, 1] for the pedal action mode's (steer, pedal)."""
+    return torch.sigmoid if action_dim == 3 else torch.tanh
+
+
 class Actor(nn.Module):
-    """mu(s): flattened window -> hidden -> (tanh steer, sigmoid throttle, sigmoid brake)."""
+    """mu(s): flattened window -> hidden -> (tanh steer, sigmoid throttle, sigmoid brake), or
+    (tanh steer, tanh pedal) in the pedal action mode (``action_dim = 2``)."""
 
     def __init__(
         self,
@@ -50,23 +58,27 @@ class Actor(nn.Module):
         hidden: tuple[int, int] = (400, 300),
         throttle_bias: float = 0.0,
         brake_bias: float = 0.0,
+        action_dim: int = 3,
     ) -> None:
         super().__init__()
         self.window = window
         self.l1 = _fan_in_init(nn.Linear(obs_dim * window, hidden[0]))
         self.l2 = _fan_in_init(nn.Linear(hidden[0], hidden[1]))
-        self.out = _final_init(nn.Linear(hidden[1], 3))
+        self.out = _final_init(nn.Linear(hidden[1], action_dim))
+        self.squash_pedals = pedal_squash(action_dim)
         with torch.no_grad():
-            # pedals start near chosen pressures: at 0.5 throttle and 0.5 brake the car never moves
+            # pedals start near chosen pressures: at 0.5 throttle and 0.5 brake the car never
+            # moves; the one pedal starts at tanh(throttle_bias) of throttle
             self.out.bias[1] += throttle_bias
-            self.out.bias[2] += brake_bias
+            if action_dim == 3:
+                self.out.bias[2] += brake_bias
 
     def forward(self, obs_window: torch.Tensor) -> torch.Tensor:
         x = obs_window[:, -self.window :].flatten(1)
         x = torch.relu_(self.l1(x))
         x = torch.relu_(self.l2(x))
         z = self.out(x)
-        return torch.cat([torch.tanh(z[:, :1]), torch.sigmoid(z[:, 1:])], dim=1)
+        return torch.cat([torch.tanh(z[:, :1]), self.squash_pedals(z[:, 1:])], dim=1)
 
 
 def addmm_operands(layer: nn.Linear) -> tuple[torch.Tensor, torch.Tensor]:
@@ -83,10 +95,14 @@ class ActorPass:
     no ``cat``, no fresh tensors: at batch 1 those cost more than the arithmetic.
     """
 
-    def __init__(self, batch: int, hidden: tuple[int, int], like: torch.Tensor) -> None:
+    def __init__(
+        self, batch: int, hidden: tuple[int, int], like: torch.Tensor, action_dim: int = 3
+    ) -> None:
         self.batch = batch
         self.a1, self.a2 = like.new_empty(batch, hidden[0]), like.new_empty(batch, hidden[1])
-        self.z, self.pi = like.new_empty(batch, 3), like.new_empty(batch, 3)
+        self.z, self.pi = like.new_empty(batch, action_dim), like.new_empty(batch, action_dim)
+        self.sigmoid_pedals = action_dim == 3
+        self.squash_pedals = pedal_squash(action_dim)
         # steer and pedal columns as views made once (a slice costs ~1.4 us per call)
         self.z_steer, self.z_pedals = self.z[:, :1], self.z[:, 1:]
         self.pi_steer, self.pi_pedals = self.pi[:, :1], self.pi[:, 1:]
@@ -100,7 +116,7 @@ class ActorPass:
         torch.relu_(torch.addmm(b2, self.a1, w2, out=self.a2))
         torch.addmm(b3, self.a2, w3, out=self.z)
         torch.tanh(self.z_steer, out=self.pi_steer)
-        torch.sigmoid(self.z_pedals, out=self.pi_pedals)
+        self.squash_pedals(self.z_pedals, out=self.pi_pedals)
         return self.pi
 
 
@@ -111,18 +127,25 @@ class GreedyAct:
         self.window = actor.window
         self.layers = tuple(addmm_operands(m) for m in (actor.l1, actor.l2, actor.out))
         hidden = (actor.l1.out_features, actor.l2.out_features)
-        self.forward = ActorPass(1, hidden, actor.l1.weight)
+        self.forward = ActorPass(1, hidden, actor.l1.weight, actor.out.out_features)
 
     @torch.no_grad()
     def __call__(self, obs_window: np.ndarray) -> np.ndarray:
-        """Action ``(3,)`` for one window ``(w, obs_dim)`` (the actor reads its last rows)."""
+        """Action ``(action_dim,)`` for one window ``(w, obs_dim)`` (the actor reads its last
+        rows)."""
         x = torch.as_tensor(obs_window, dtype=torch.float32, device=self.forward.pi.device)
         pi = self.forward(x[-self.window :].reshape(1, -1), self.layers)
         return pi[0].cpu().numpy().copy()
 
 
 class MLPCritic(nn.Module):
-    """Q(s, a): flattened state window -> h1, [h1, a] -> h2 -> Q (action at the second layer)."""
+    """Q(s, a): flattened state window -> h1, [h1, a] -> h2 -> Q (action at the second layer).
+
+    With ``layer_norm`` (beyond the paper: RLPD, Ball et al. 2023) each hidden layer's
+    pre-activation passes a LayerNorm before its ReLU, which bounds the critic's features and so
+    its extrapolation to actions the buffer never holds; off, the norms are identities and the
+    critic is Lillicrap's, parameter for parameter.
+    """
 
     recurrent = False
 
@@ -132,8 +155,10 @@ class MLPCritic(nn.Module):
         action_dim: int = 3,
         window: int = 1,
         hidden: tuple[int, int] = (400, 300),
+        layer_norm: bool = False,
     ) -> None:
         super().__init__()
+        self.layer_norm = layer_norm
         self.window = window
         self.l1 = _fan_in_init(nn.Linear(obs_dim * window, hidden[0]))
         # the second layer's weight is split into its h1 and action columns: W2 [h1, a] =
@@ -146,6 +171,8 @@ class MLPCritic(nn.Module):
             self.l2.bias.copy_(l2.bias)
             self.l2_action.weight.copy_(l2.weight[:, hidden[0] :])
         self.out = _final_init(nn.Linear(hidden[1], 1))
+        self.norm1: nn.Module = nn.LayerNorm(hidden[0]) if layer_norm else nn.Identity()
+        self.norm2: nn.Module = nn.LayerNorm(hidden[1]) if layer_norm else nn.Identity()
 
     def forward(
         self,
@@ -154,8 +181,8 @@ class MLPCritic(nn.Module):
         past_actions: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Q values ``(B,)``; ``past_actions`` is ignored (only the LSTM critic reads it)."""
-        h = torch.relu_(self.l1(obs_window[:, -self.window :].flatten(1)))
-        h = torch.relu_(torch.addmm(self.l2(h), action, self.l2_action.weight.t()))
+        h = torch.relu_(self.norm1(self.l1(obs_window[:, -self.window :].flatten(1))))
+        h = torch.relu_(self.norm2(torch.addmm(self.l2(h), action, self.l2_action.weight.t())))
         return self.out(h).squeeze(1)
 
     def q_pair(
@@ -171,11 +198,13 @@ class MLPCritic(nn.Module):
         the critic costs ~1% instead of ~20% of an update's FLOPs. The second value is detached
         from the state path, so the actor loss reaches the actor through the action alone.
         """
-        h = torch.relu_(self.l1(obs_window[:, -self.window :].flatten(1)))
+        h = torch.relu_(self.norm1(self.l1(obs_window[:, -self.window :].flatten(1))))
         base = self.l2(h)
         w_a = self.l2_action.weight.t()
-        q = self.out(torch.relu_(torch.addmm(base, action, w_a))).squeeze(1)
-        q_pi = self.out(torch.relu_(torch.addmm(base.detach(), policy_action, w_a))).squeeze(1)
+        q = self.out(torch.relu_(self.norm2(torch.addmm(base, action, w_a)))).squeeze(1)
+        q_pi = self.out(
+            torch.relu_(self.norm2(torch.addmm(base.detach(), policy_action, w_a)))
+        ).squeeze(1)
         return q, q_pi
 
 
@@ -194,11 +223,13 @@ class TwinCritic(nn.Module):
         action_dim: int = 3,
         window: int = 1,
         hidden: tuple[int, int] = (400, 300),
+        layer_norm: bool = False,
     ) -> None:
         super().__init__()
         self.window = window
-        self.q1 = MLPCritic(obs_dim, action_dim, window, hidden)
-        self.q2 = MLPCritic(obs_dim, action_dim, window, hidden)
+        self.layer_norm = layer_norm
+        self.q1 = MLPCritic(obs_dim, action_dim, window, hidden, layer_norm)
+        self.q2 = MLPCritic(obs_dim, action_dim, window, hidden, layer_norm)
 
     def forward(
         self,
@@ -222,11 +253,72 @@ class TwinCritic(nn.Module):
         return torch.stack([q1, q2]), torch.stack([q1_pi, q2_pi])
 
 
+class BNCritic(nn.Module):
+    """CrossQ's Q(s, a) (Bhatt et al. 2024): [flattened window, a] -> BN -> (Linear -> BN ->
+    ReLU) x 2 -> Q.
+
+    Batch normalisation on the input and after each hidden layer; in training mode it
+    normalises by the batch's statistics, so the CrossQ update feeds (s, a) and (s', a') as one
+    joint batch and both halves see the same normalisation. In eval mode (the actor loss,
+    acting) it uses the running statistics (``momentum`` per training pass).
+    """
+
+    recurrent = False
+
+    def __init__(
+        self,
+        obs_dim: int,
+        action_dim: int = 3,
+        window: int = 1,
+        hidden: tuple[int, int] = (256, 256),
+        momentum: float = 0.01,
+    ) -> None:
+        super().__init__()
+        self.window = window
+        self.bn_in = nn.BatchNorm1d(obs_dim * window + action_dim, momentum=momentum)
+        self.l1 = _fan_in_init(nn.Linear(obs_dim * window + action_dim, hidden[0]))
+        self.bn1 = nn.BatchNorm1d(hidden[0], momentum=momentum)
+        self.l2 = _fan_in_init(nn.Linear(hidden[0], hidden[1]))
+        self.bn2 = nn.BatchNorm1d(hidden[1], momentum=momentum)
+        self.out = _final_init(nn.Linear(hidden[1], 1))
+
+    def forward(self, obs_window: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """Q values ``(B,)``."""
+        x = self.bn_in(torch.cat([obs_window[:, -self.window :].flatten(1), action], dim=1))
+        x = torch.relu(self.bn1(self.l1(x)))
+        x = torch.relu(self.bn2(self.l2(x)))
+        return self.out(x).squeeze(1)
+
+
+class BNTwinCritic(nn.Module):
+    """CrossQ's Q1 and Q2: two :class:`BNCritic` s, values stacked ``(2, B)`` (row 0 is Q1)."""
+
+    recurrent = False
+
+    def __init__(
+        self,
+        obs_dim: int,
+        action_dim: int = 3,
+        window: int = 1,
+        hidden: tuple[int, int] = (256, 256),
+        momentum: float = 0.01,
+    ) -> None:
+        super().__init__()
+        self.window = window
+        self.q1 = BNCritic(obs_dim, action_dim, window, hidden, momentum)
+        self.q2 = BNCritic(obs_dim, action_dim, window, hidden, momentum)
+
+    def forward(self, obs_window: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """``(2, B)``: [Q1(s, a); Q2(s, a)]."""
+        return torch.stack([self.q1(obs_window, action), self.q2(obs_window, action)])
+
+
 class SquashedGaussianActor(nn.Module):
     """SAC's pi(a|s): u ~ N(m(s), sigma(s)^2), a = c + k tanh(u) onto the action box.
 
     ``c = (0, 0.5, 0.5)`` and ``k = (1, 0.5, 0.5)`` map tanh's (-1, 1) onto steer (-1..1) and the
-    pedals (0..1). The density of ``a`` is that of ``u`` divided by the map's Jacobian
+    pedals (0..1); in the pedal action mode ``c = (0, 0)``, ``k = (1, 1)``. The density of ``a``
+    is that of ``u`` divided by the map's Jacobian
     ``k (1 - tanh(u)^2)`` per dimension (Haarnoja et al. 2018, appendix C, with the affine factor
     ``k``). ``forward`` is the greedy action ``c + k tanh(m)``; since ``(1 + tanh(z/2)) / 2 =
     sigmoid(z)``, halving the pedal bias inits starts the mean pedals where the deterministic
@@ -240,18 +332,23 @@ class SquashedGaussianActor(nn.Module):
         hidden: tuple[int, int] = (256, 256),
         throttle_bias: float = 0.0,
         brake_bias: float = 0.0,
+        action_dim: int = 3,
     ) -> None:
         super().__init__()
         self.window = window
         self.l1 = _fan_in_init(nn.Linear(obs_dim * window, hidden[0]))
         self.l2 = _fan_in_init(nn.Linear(hidden[0], hidden[1]))
-        self.mean = _final_init(nn.Linear(hidden[1], 3))
-        self.log_std = _final_init(nn.Linear(hidden[1], 3))
+        self.mean = _final_init(nn.Linear(hidden[1], action_dim))
+        self.log_std = _final_init(nn.Linear(hidden[1], action_dim))
+        centre, scale = (ACTION_CENTRE, ACTION_SCALE) if action_dim == 3 else PEDAL_BOX
         with torch.no_grad():
-            self.mean.bias[1] += throttle_bias / 2
-            self.mean.bias[2] += brake_bias / 2
-        self.register_buffer("centre", torch.tensor(ACTION_CENTRE), persistent=False)
-        self.register_buffer("scale", torch.tensor(ACTION_SCALE), persistent=False)
+            if action_dim == 3:
+                self.mean.bias[1] += throttle_bias / 2
+                self.mean.bias[2] += brake_bias / 2
+            else:  # the pedal starts at tanh(throttle_bias), as the deterministic actor's
+                self.mean.bias[1] += throttle_bias
+        self.register_buffer("centre", torch.tensor(centre), persistent=False)
+        self.register_buffer("scale", torch.tensor(scale), persistent=False)
 
     def distribution(self, obs_window: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``(m, log sigma)`` of the pre-squash Gaussian, log sigma clamped to [-20, 2]."""

@@ -15,6 +15,19 @@ import numpy as np
 ACTION_LOW = np.array([-1.0, 0.0, 0.0], dtype=np.float32)
 ACTION_HIGH = np.array([1.0, 1.0, 1.0], dtype=np.float32)
 STEER, THROTTLE, BRAKE = 0, 1, 2
+PEDAL = 1  # the pedal action mode's second axis: throttle above 0, brake below
+PEDAL_LOW = np.array([-1.0, -1.0], dtype=np.float32)
+PEDAL_HIGH = np.array([1.0, 1.0], dtype=np.float32)
+
+
+def action_box(action_dim: int) -> tuple[np.ndarray, np.ndarray]:
+    """The env's action box for an action of ``action_dim`` values: (steer, throttle, brake)
+    or, in the pedal action mode (beyond the paper), (steer, pedal)."""
+    if action_dim == 3:
+        return ACTION_LOW, ACTION_HIGH
+    if action_dim == 2:
+        return PEDAL_LOW, PEDAL_HIGH
+    raise ValueError(f"action_dim {action_dim}: the env's actions have 3 (paper) or 2 (pedal)")
 
 
 def linear_epsilon(step: int, exploration_steps: int, floor: float = 0.0) -> float:
@@ -65,13 +78,17 @@ class OrnsteinUhlenbeck:
 
 
 class BrakeExplorationNoise:
-    """Exploration for (steer, throttle, brake) actions.
+    """Exploration for (steer, throttle, brake) actions, or (steer, pedal) ones.
 
     Each step: the OU sample, scaled by epsilon, is added to each dimension with probability
     ``noise_prob``. With probability ``brake_prob`` (brake exploration) the brake is instead pulled
     towards a pressure drawn from N(brake_mean, brake_sigma) by the fraction epsilon, and the
     throttle is multiplied by (1 - epsilon) without noise: during brake exploration the throttle
     can only go down, and at epsilon = 1 it is released fully.
+
+    With ``action_dim = 2`` (the pedal action mode, beyond the paper) the OU process runs on
+    steer and pedal with the steer and throttle entries of ``ou_theta`` and ``ou_sigma``, and
+    brake exploration pulls the pedal towards minus the drawn brake pressure.
     """
 
     def __init__(
@@ -84,12 +101,16 @@ class BrakeExplorationNoise:
         brake_mean: float = 0.5,
         brake_sigma: float = 0.2,
         brake_hold_steps: int = 1,
+        action_dim: int = 3,
     ) -> None:
         self.rng = rng
+        self.action_dim = int(action_dim)
+        self.low, self.high = action_box(self.action_dim)
         self.brake_hold_steps = int(brake_hold_steps)
         self._hold_left = 0
         self._hold_target = 0.0
-        self.ou = OrnsteinUhlenbeck(np.asarray(ou_theta), np.asarray(ou_sigma), rng)
+        dims = slice(0, self.action_dim)
+        self.ou = OrnsteinUhlenbeck(np.asarray(ou_theta)[dims], np.asarray(ou_sigma)[dims], rng)
         self.noise_prob = noise_prob
         self.brake_prob = brake_prob
         self.brake_mean = brake_mean
@@ -103,10 +124,10 @@ class BrakeExplorationNoise:
         """Return the explored action (clipped to the action box) and what was done."""
         action = np.asarray(action, dtype=np.float64)
         ou = self.ou.sample()  # advance every step so correlation does not depend on epsilon
-        mask = self.rng.random(3) < self.noise_prob
+        mask = self.rng.random(self.action_dim) < self.noise_prob
         brake_explored = bool(self.rng.random() < self.brake_prob) and epsilon > 0.0
         if epsilon <= 0.0:
-            return action.astype(np.float32), NoiseEvent(np.zeros(3, bool), False)
+            return action.astype(np.float32), NoiseEvent(np.zeros(self.action_dim, bool), False)
         out = action + epsilon * ou * mask
         if self.brake_hold_steps > 1:
             # beyond the paper: a fired brake exploration is held for a drawn number of steps,
@@ -121,9 +142,13 @@ class BrakeExplorationNoise:
         if brake_explored:
             target_brake = (self._hold_target if self.brake_hold_steps > 1
                             else self.brake_mean + self.brake_sigma * self.rng.standard_normal())
-            out[BRAKE] = action[BRAKE] + epsilon * (target_brake - action[BRAKE])
-            out[THROTTLE] = action[THROTTLE] * (1.0 - epsilon)
             mask = mask.copy()
-            mask[THROTTLE] = False
-        out = np.clip(out, ACTION_LOW, ACTION_HIGH).astype(np.float32)
+            if self.action_dim == 2:  # the pedal pulled towards the brake side
+                out[PEDAL] = action[PEDAL] + epsilon * (-target_brake - action[PEDAL])
+                mask[PEDAL] = False
+            else:
+                out[BRAKE] = action[BRAKE] + epsilon * (target_brake - action[BRAKE])
+                out[THROTTLE] = action[THROTTLE] * (1.0 - epsilon)
+                mask[THROTTLE] = False
+        out = np.clip(out, self.low, self.high).astype(np.float32)
         return out, NoiseEvent(mask, brake_explored)

@@ -78,10 +78,13 @@ class SACAgent(Agent):
     def _make_actor(self) -> nn.Module:
         cfg = self.cfg
         return SquashedGaussianActor(self.obs_dim, self.actor_window, cfg.hidden,
-                                     cfg.throttle_bias_init, cfg.brake_bias_init)  # fmt: skip
+                                     cfg.throttle_bias_init, cfg.brake_bias_init,
+                                     self.action_dim)  # fmt: skip
 
     def _make_critic(self) -> nn.Module:
-        return TwinCritic(self.obs_dim, self.action_dim, self.cfg.window, self.cfg.hidden)
+        cfg = self.cfg
+        return TwinCritic(self.obs_dim, self.action_dim, cfg.window, cfg.hidden,
+                          cfg.critic_layer_norm)  # fmt: skip
 
     def explore(self, obs_window: np.ndarray) -> np.ndarray:
         """A sample ``a ~ pi(.|s)`` for one window (the greedy action is the squashed mean

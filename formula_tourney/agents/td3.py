@@ -64,7 +64,9 @@ class TD3Agent(Agent):
         self._policy_delay = cfg.policy_delay
 
     def _make_critic(self) -> nn.Module:
-        return TwinCritic(self.obs_dim, self.action_dim, self.cfg.window, self.cfg.hidden)
+        cfg = self.cfg
+        return TwinCritic(self.obs_dim, self.action_dim, cfg.window, cfg.hidden,
+                          cfg.critic_layer_norm)  # fmt: skip
 
     @torch.no_grad()
     def target(

@@ -3,8 +3,8 @@
 A variant is a configuration, never a copy of an algorithm: WIN1/4/8 set the window ``w`` fed to
 actor and critic, LSTM4/8 switch the DDPG critic to the LSTM critic over a window of ``w``
 states and actions, MS2/3/4 set the n of the multi-step target, PER40k/PER1M switch on
-prioritized replay with that buffer size; TD3 and SAC (beyond the paper) are variants of their
-own families. ``algorithm`` names the family (``families.py``), ``family`` the group a
+prioritized replay with that buffer size; TD3, SAC and CrossQ (beyond the paper) are variants
+of their own families. ``algorithm`` names the family (``families.py``), ``family`` the group a
 tournament promotes the best entrant of. :class:`AgentConfig` joins the settings every family
 shares (:class:`SharedSettings`) with each family's own (declared in its module), under flat
 keys, so tournament files, presets and ``train --set`` name them the same way; a family's
@@ -34,15 +34,16 @@ class SharedSettings(BaseModel):
     family: str = Field(
         "DDPG",
         description="Tournament family: the paper's DDPG (the WIN variants), LSTM, MS or PER, or "
-        "TD3 or SAC beyond the paper; tournaments promote the best entrant of each family. It "
-        "must be one its algorithm's variants may carry.",
+        "TD3, SAC or CrossQ beyond the paper; tournaments promote the best entrant of each "
+        "family. It must be one its algorithm's variants may carry.",
     )
     algorithm: str = Field(
         "ddpg",
         description="Algorithm family (agents.families): ddpg (the paper's: one critic, "
         "deterministic actor), td3 (twin critics with clipped double-Q, target policy "
-        "smoothing, delayed actor) or sac (squashed Gaussian actor, twin critics, entropy "
-        "bonus with a learned temperature).",
+        "smoothing, delayed actor), sac (squashed Gaussian actor, twin critics, entropy "
+        "bonus with a learned temperature) or crossq (SAC with batch-normalised critics and no "
+        "target networks).",
     )
     # --- variant axes -------------------------------------------------------------------------
     window: int = Field(
@@ -98,6 +99,14 @@ class SharedSettings(BaseModel):
     batch_size: int = Field(256, ge=1, le=65536, description="Minibatch size N per update.")
     hidden: tuple[int, int] = Field(
         (400, 300), description="Hidden units of the actor and the MLP critic (Lillicrap 400-300)."
+    )
+    critic_layer_norm: bool = Field(
+        False,
+        description="Beyond the paper: a LayerNorm before each hidden ReLU of the MLP critics "
+        "(DDPG's, TD3's and SAC's; RLPD, Ball et al. 2023), which bounds Q's extrapolation to "
+        "actions the buffer never holds. DDPG then updates through autograd (the hand-written "
+        "backend has no norm). Not with lstm_critic, nor CrossQ's batch-norm critics.",
+        json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
     )
     learning_starts: int = Field(
         1_000, ge=0, description="Environment steps of pure exploration before updates begin."
@@ -194,6 +203,11 @@ class AgentConfig(*reversed([f.settings for f in ALGORITHMS.values()]), SharedSe
                 f"unknown algorithm {self.algorithm!r}; known: {', '.join(ALGORITHMS)}"
             )
         own = ALGORITHMS[self.algorithm]
+        if self.critic_layer_norm and (self.lstm_critic or not own.critic_layer_norm_applies):
+            raise ValueError(
+                "critic_layer_norm applies to the MLP critics (ddpg without lstm_critic, td3, "
+                f"sac), not {'lstm_critic' if self.lstm_critic else self.algorithm}"
+            )
         if self.family not in own.tourney_families:
             raise ValueError(
                 f"family {self.family} does not fit algorithm {self.algorithm}; allowed: "
@@ -258,6 +272,17 @@ BEYOND_PAPER_VARIANTS: dict[str, AgentConfig] = {
         actor_lr=3e-4,
         critic_lr=3e-4,
         alpha_lr=3e-4,
+    ),
+    # CrossQ (Bhatt et al. 2024, sb3-contrib's defaults): lr 1e-3 everywhere, actor delay 3,
+    # Adam beta1 0.5, BN momentum 0.01 (the field defaults); 256-256 critics instead of the
+    # paper's 2048-2048 ones, ~57x the multiply-adds per update on a CPU
+    "CrossQ": AgentConfig(
+        name="CrossQ",
+        family="CrossQ",
+        algorithm="crossq",
+        hidden=(256, 256),
+        actor_lr=1e-3,
+        critic_lr=1e-3,
     ),
 }
 """Registered variants of families the paper did not race; ``beyond_paper`` is True for each."""

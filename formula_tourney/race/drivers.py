@@ -14,6 +14,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from formula_tourney.agents.buffers import ObservationWindow
+from formula_tourney.sim.env import as_controls
 
 
 class Driver(Protocol):
@@ -53,7 +54,7 @@ class ModelDriver:
         assert self._window is not None, "reset() first"
         if self._stack is None:
             self._stack = self._window.push(self._input(obs, opp))
-        action = np.asarray(self.agent.act_eval(self._stack), dtype=np.float64)
+        action = as_controls(self.agent.act_eval(self._stack))  # a pedal agent's, too
         self._stack = None  # the next act pushes the observation that this action leads to
         return action
 

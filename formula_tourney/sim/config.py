@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import (
@@ -70,7 +70,8 @@ GRIP_MIN, GRIP_MAX = 0.2, 1.5
 GripScale = Annotated[Real, Field(ge=GRIP_MIN, le=GRIP_MAX)]
 """A friction multiplier (ice ~0.3, wet ~0.6-0.8, dry 1): the one range every grip key shares."""
 
-RUN_OWNED_KEYS: tuple[str, ...] = ("track", "reference_line", "lac", "max_steps", "random_start")
+RUN_OWNED_KEYS: tuple[str, ...] = ("track", "reference_line", "lac", "max_steps", "random_start",
+                                   "curriculum_starts_m")  # fmt: skip
 """Env keys a run specification sets from its own fields (never from env overrides)."""
 
 
@@ -147,6 +148,28 @@ class EnvSettings(BaseModel):
         "to grip_scale over that many laps driven. None: no drying.",
         json_schema_extra=marks(added_in_layout=2),
     )
+    action_mode: Literal["paper", "pedal"] = Field(
+        "paper",
+        description="Beyond the paper with 'pedal': the action is (steer, pedal) in [-1, 1]^2, "
+        "pedal > 0 the throttle and pedal < 0 the brake pressure (Fuchs et al. 2021's Gran "
+        "Turismo driver), so noise around 0 brakes half the time and both pedals are never "
+        "pressed at once. 'paper': (steer, throttle, brake).",
+        json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
+    )
+    start_curriculum: Literal["none", "braking"] = Field(
+        "none",
+        description="Beyond the paper with 'braking': a share start_curriculum_share of "
+        "training episodes starts before a braking zone of the reference line's QSS speed "
+        "profile (training.curriculum), where exploration rarely brakes long enough; tests "
+        "start as always. 'none': every start as random_start says.",
+        json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
+    )
+    start_curriculum_share: Annotated[Real, Field(ge=0.0, le=1.0)] = Field(
+        0.5,
+        description="Beyond the paper: the share of training episodes the start curriculum "
+        "places (the rest start as random_start says).",
+        json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
+    )
     car: dict[str, Any] = Field(
         default_factory=dict,
         description="Overrides of the car's physical constants (keys of sim.car_params."
@@ -218,6 +241,21 @@ class EnvConfig(EnvSettings):
     random_start: Boolean = Field(
         False, description="Start each episode at a random place on the track."
     )
+    curriculum_starts_m: tuple[Real, ...] = Field(
+        (),
+        description="Track positions (m) that a share start_curriculum_share of episodes "
+        "starts at, drawn uniformly among them; a training run fills them for its "
+        "start_curriculum (training.curriculum). Empty: none.",
+    )
+
+    @model_validator(mode="after")
+    def _curriculum_has_starts(self) -> EnvConfig:
+        if self.start_curriculum != "none" and not self.curriculum_starts_m:
+            raise ValueError(
+                f"start_curriculum {self.start_curriculum!r} needs curriculum_starts_m (a "
+                "training run fills them: training.curriculum.braking_starts)"
+            )
+        return self
 
     @field_validator("track", mode="before")
     @classmethod

@@ -90,6 +90,9 @@ class _Batch:
         self.slow_patience = cfg.slow_patience_steps
         self.start_speed = cfg.start_speed_mps
         self.random_start = cfg.random_start
+        # beyond the paper: the start curriculum's positions and share (none: no draws at all)
+        self.curriculum_starts = np.asarray(cfg.curriculum_starts_m, dtype=float)
+        self.curriculum_share = cfg.start_curriculum_share
         self.grass_w = cfg.grass_width_m
         self.cfg = np.zeros(K.N_CFG)
         c = self.cfg
@@ -188,8 +191,11 @@ class _Batch:
                   options: Mapping[str, Any] | ResetOptions | None) -> None:
         """Place car ``c`` for a new episode; the next kernel call only observes it."""
         opts = ResetOptions.parse(options)  # an instance passes through unchecked
+        curriculum = self.curriculum_starts
         if opts.start_s_m is not None:
             s = opts.start_s_m
+        elif len(curriculum) and rng.random() < self.curriculum_share:
+            s = float(curriculum[rng.integers(len(curriculum))])
         elif self.random_start:
             s = float(rng.uniform(0.0, self.track.length_m))
         else:
@@ -217,6 +223,10 @@ class _Batch:
             s = rng.uniform(0.0, tr.length_m, size=k)
         else:
             s = np.full(k, tr.length_m - DEFAULT_START_BEFORE_LINE_M)
+        curriculum = self.curriculum_starts
+        if len(curriculum):
+            placed = rng.random(k) < self.curriculum_share
+            s = np.where(placed, curriculum[rng.integers(len(curriculum), size=k)], s)
         if self._start_row is None:
             self._start_row = np.zeros(K.N_STATE)
             set_start(self._start_row, self.car, 0.0, 0.0, 0.0, self.start_speed)
@@ -292,6 +302,43 @@ class InvalidActionError(gymnasium.error.InvalidAction, ValueError):
 
 _ACTION_SHAPE = (3,)
 """One car's action: (steer, throttle, brake). The vector env takes ``(num_envs, 3)``."""
+_PEDAL_SHAPE = (2,)
+"""One car's action in the ``pedal`` action mode: (steer, pedal)."""
+
+
+def action_space_of(action_mode: str) -> spaces.Box:
+    """One car's action space: ``Box([-1, 0, 0], [1, 1, 1])`` (paper) or ``Box([-1, -1], [1,
+    1])`` (``pedal``: steer and one pedal, throttle above 0 and brake below)."""
+    if action_mode == "pedal":
+        return spaces.Box(np.full(2, -1, np.float32), np.ones(2, np.float32), dtype=np.float32)
+    return spaces.Box(np.array([-1, 0, 0], np.float32), np.array([1, 1, 1], np.float32),
+                      dtype=np.float32)  # fmt: skip
+
+
+def pedal_controls(actions: np.ndarray, out: np.ndarray) -> None:
+    """(steer, pedal) rows into the (steer, throttle, brake) rows ``out`` the kernel reads:
+    throttle = max(pedal, 0), brake = max(-pedal, 0)."""
+    out[..., 0] = actions[..., 0]
+    np.maximum(actions[..., 1], 0.0, out=out[..., 1])
+    np.maximum(np.negative(actions[..., 1]), 0.0, out=out[..., 2])
+
+
+def as_controls(action: np.ndarray) -> np.ndarray:
+    """One car's action of either mode as (steer, throttle, brake): a pedal action mapped by
+    :func:`pedal_controls`, a three-axis one as it is."""
+    action = np.asarray(action, dtype=np.float64)
+    if action.shape != _PEDAL_SHAPE:
+        return action
+    out = np.empty(3)
+    pedal_controls(action, out)
+    return out
+
+
+def pedal_action(controls: np.ndarray) -> np.ndarray:
+    """(steer, throttle, brake) rows as (steer, pedal) rows, pedal = throttle - brake: how a
+    bot's three-axis action (a demonstration) is written in the ``pedal`` action mode."""
+    controls = np.asarray(controls, dtype=np.float32)
+    return np.stack([controls[..., 0], controls[..., 1] - controls[..., 2]], axis=-1)
 
 
 def _as_array(action: Any, shape: tuple[int, ...]) -> np.ndarray:
@@ -306,10 +353,11 @@ def _as_array(action: Any, shape: tuple[int, ...]) -> np.ndarray:
 def _bad_action(action: np.ndarray, shape: tuple[int, ...]) -> InvalidActionError:
     """The error for a wrong shape or a non-finite value (built only on the failing path)."""
     per_car = " per car" if len(shape) > 1 else ""
+    names = "steer, pedal" if shape[-1] == 2 else "steer, throttle, brake"
     text = np.array2string(np.asarray(action), threshold=12)
     if action.shape != shape:
         return InvalidActionError(
-            f"action: expected shape {shape} (steer, throttle, brake{per_car}), got shape "
+            f"action: expected shape {shape} ({names}{per_car}), got shape "
             f"{action.shape}: {text}")
     try:
         bad = ~np.isfinite(np.asarray(action, dtype=np.float64))
@@ -356,7 +404,9 @@ class FormulaRacingEnv(gymnasium.Env):
     ## Action Space
     `Box([-1, 0, 0], [1, 1, 1], float32)`: steer (> 0 turns left, 1 = full lock), throttle,
     brake. Values outside are clipped; anything but three finite numbers (a scalar, None, NaN,
-    another shape) raises `InvalidActionError` (a `ValueError`).
+    another shape) raises `InvalidActionError` (a `ValueError`). Beyond the paper, `action_mode`
+    "pedal": `Box([-1, -1], [1, 1])`, steer and one pedal (throttle = max(pedal, 0), brake =
+    max(-pedal, 0)); `applied_controls` is the last step's (steer, throttle, brake).
 
     ## Observation Space
     Flat float32, 29 values (33 with `lac`); names from
@@ -375,7 +425,8 @@ class FormulaRacingEnv(gymnasium.Env):
 
     ## Starting State
     On the reference line, `start_s_m` (default 50 m before the start line, or uniform with
-    `random_start`), heading along the line, at `start_speed_mps` (default at rest). The lap
+    `random_start`; beyond the paper, a share `start_curriculum_share` of them at one of
+    `curriculum_starts_m`), heading along the line, at `start_speed_mps` (default at rest). The lap
     clock starts at the first crossing of the start line; each later crossing completes a lap,
     its time interpolated inside the physics substep.
 
@@ -392,7 +443,7 @@ class FormulaRacingEnv(gymnasium.Env):
     physics_hz (>= 100), max_steps, terminate_off_track, terminate_backwards, terminate_slow,
     slow_speed_kmh, slow_patience_steps, slow_penalty, damage_weight, random_start,
     start_speed_mps, grass_width_m, grip_scale, grip_scale_range (a grip drawn per episode),
-    grip_drying (a drying track), track_pos_weight, progress_reward, car (CarParams
+    grip_drying (a drying track), track_pos_weight, progress_reward, action_mode, car (CarParams
     overrides). `info["grip_scale"]` is the episode's grip now (every surface's friction
     multiplier).
     `reset(seed=..., options={{"start_s_m": float, "start_speed_mps": float}})`.
@@ -416,8 +467,8 @@ class FormulaRacingEnv(gymnasium.Env):
         self.car = self._b.car
         self.observation_names = self._b.names
         self.metadata = {**self.metadata, "render_fps": 1.0 / self._b.period_s}
-        self.action_space = spaces.Box(np.array([-1, 0, 0], np.float32),
-                                       np.array([1, 1, 1], np.float32), dtype=np.float32)
+        self.action_space = action_space_of(self.env_config.action_mode)
+        self._pedal = self.env_config.action_mode == "pedal"
         self.observation_space = spaces.Box(self._b.obs_low, self._b.obs_high, dtype=np.float32)
         self._renderer = None
         self._act_row = self._b.actions[0]
@@ -437,8 +488,15 @@ class FormulaRacingEnv(gymnasium.Env):
         b.integrate[0] = 1
         return self._obs_row.copy(), b.info(0)
 
+    @property
+    def applied_controls(self) -> np.ndarray:
+        """(steer, throttle, brake) of the last step as the kernel read them (before its clip
+        to the box): the action itself, or in the ``pedal`` mode its mapping."""
+        return self._act_row.copy()
+
     def step(self, action):
-        b = self._b
+        if self._pedal:
+            return self._step_pedal(action)
         row = self._act_row
         # A cheap check (~0.5 us of a ~7 us step), not action_space.contains: NumPy would
         # broadcast a scalar into all three controls and turn None into NaN.
@@ -453,6 +511,19 @@ class FormulaRacingEnv(gymnasium.Env):
         steer, throttle, brake = row.tolist()
         if steer - steer or throttle - throttle or brake - brake:  # x - x is NaN unless finite
             raise _bad_action(action, _ACTION_SHAPE)
+        return self._run()
+
+    def _step_pedal(self, action):
+        """``step`` in the ``pedal`` action mode: (steer, pedal) mapped onto the kernel's row."""
+        action = _as_array(action, _PEDAL_SHAPE)
+        if action.shape != _PEDAL_SHAPE or not np.isfinite(action).all():
+            raise _bad_action(action, _PEDAL_SHAPE)
+        pedal_controls(action, self._act_row)
+        return self._run()
+
+    def _run(self):
+        """One control period from the action row; the step's return."""
+        b = self._b
         b.run()
         out = self._out_row
         lap = out[K.O_LAP_TIME]
@@ -506,8 +577,8 @@ class FormulaRacingVectorEnv(VectorEnv):
         self.track = self._b.track
         self.car = self._b.car
         self.observation_names = self._b.names
-        self.single_action_space = spaces.Box(np.array([-1, 0, 0], np.float32),
-                                              np.array([1, 1, 1], np.float32), dtype=np.float32)
+        self.single_action_space = action_space_of(self.env_config.action_mode)
+        self._pedal = self.env_config.action_mode == "pedal"
         self.single_observation_space = spaces.Box(self._b.obs_low, self._b.obs_high,
                                                    dtype=np.float32)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
@@ -515,7 +586,7 @@ class FormulaRacingVectorEnv(VectorEnv):
         self._needs_reset = np.zeros(self.num_envs, dtype=bool)
         self._renderer = None
         self._mask = np.ones(self.num_envs, dtype=bool)
-        self._action_shape = (self.num_envs, 3)
+        self._action_shape = (self.num_envs, 2 if self._pedal else 3)
         self._finite = np.zeros(self._action_shape, dtype=bool)
 
     def reset(self, *, seed: int | list[int] | None = None, options: dict | None = None):
@@ -540,12 +611,17 @@ class FormulaRacingVectorEnv(VectorEnv):
         if actions.shape != self._action_shape:
             raise _bad_action(actions, self._action_shape)
         acts = b.actions
-        try:
-            acts[:] = actions
-        except (TypeError, ValueError):
-            raise _bad_action(actions, self._action_shape) from None
-        if not np.isfinite(acts, out=self._finite).all():
-            raise _bad_action(actions, self._action_shape)
+        if self._pedal:
+            if not np.isfinite(actions).all():
+                raise _bad_action(actions, self._action_shape)
+            pedal_controls(actions, acts)
+        else:
+            try:
+                acts[:] = actions
+            except (TypeError, ValueError):
+                raise _bad_action(actions, self._action_shape) from None
+            if not np.isfinite(acts, out=self._finite).all():
+                raise _bad_action(actions, self._action_shape)
         if self._needs_reset.any():
             b.reset_cars(self._needs_reset.nonzero()[0], self.np_random)
         b.run()

@@ -61,8 +61,9 @@ def warm_up(spec: RunSpec) -> None:
     loaded (from their caches) before a CPU clock starts."""
     env = RunEnvs(spec).make(spec.key_track, test=False)
     env.reset(seed=0)
-    for _ in range(3):
-        env.step(np.array([0.0, 0.5, 0.0], np.float32))
+    half_throttle = np.array([0.0, 0.5, 0.0], np.float32)[: env.action_space.shape[0]]
+    for _ in range(3):  # (steer 0, pedal 0.5) in the pedal action mode: the same throttle
+        env.step(half_throttle)
     env.close()
 
 

@@ -27,7 +27,7 @@ import torch
 from formula_tourney.agents.buffers import ReplayBuffer
 from formula_tourney.bots.follower import Follower, FollowerConfig, _car_state
 from formula_tourney.bots.line_offsets import reference_offsets
-from formula_tourney.sim.env import DEFAULT_START_BEFORE_LINE_M
+from formula_tourney.sim.env import DEFAULT_START_BEFORE_LINE_M, pedal_action
 from formula_tourney.sim.reward import RewardRule
 from formula_tourney.training.envs import RunEnvs
 from formula_tourney.training.run_spec import DEMO_BOT, RunSpec
@@ -101,6 +101,7 @@ def drive_laps(
     (with the reward of ``reward_rule``, as the agent's own; the env's reward without one)
     when one is given."""
     drive = DemoDrive(track=track)
+    pedal = env.action_space.shape == (2,)
     store = reward_rule or RewardRule()
     options = {} if start_s_m is None else {"start_s_m": float(start_s_m)}
     while len(drive.lap_times_s) < laps and drive.steps < step_cap:
@@ -110,6 +111,8 @@ def drive_laps(
         ended = False
         while True:
             action = np.asarray(bot.act(_car_state(env)), dtype=np.float32)
+            if pedal:  # the bot's (steer, throttle, brake) as the env's (steer, pedal)
+                action = pedal_action(action)
             next_obs, reward, terminated, truncated, info = env.step(action)
             drive.steps += 1
             ended = bool(terminated or truncated)

@@ -22,6 +22,7 @@ from formula_tourney.lines.limit import reference_limit_s
 from formula_tourney.sim.catalog import load_track
 from formula_tourney.sim.config import EnvConfig
 from formula_tourney.sim.track import Track
+from formula_tourney.training.curriculum import braking_starts
 from formula_tourney.training.run_spec import RunSpec
 
 ENV_ID = "FormulaRacing-v0"
@@ -66,8 +67,10 @@ class RunEnvs:
         steps = max_steps or (schedule.test_max_steps if test else schedule.max_steps)
         env = {k: getattr(self.spec.env, k) for k in type(self.spec.env).model_fields}
         if test:
-            env.update(grip_scale_range=None, grip_drying=None,
+            env.update(grip_scale_range=None, grip_drying=None, start_curriculum="none",
                        grip_scale=self.spec.env.grip_scale if grip_scale is None else grip_scale)
+        elif self.spec.env.start_curriculum == "braking":
+            env["curriculum_starts_m"] = self.curriculum_starts(track)
         # parse, not construct: a grip given here (``eval --grip``) is checked like any env key
         return EnvConfig.parse({
             **env,
@@ -75,6 +78,13 @@ class RunEnvs:
             "lac": self.spec.lac, "max_steps": steps,
             "random_start": False if test else schedule.random_start,
         }, f"{'test ' if test else ''}env of {track}")  # fmt: skip
+
+    def curriculum_starts(self, track: str) -> tuple[float, ...]:
+        """The start curriculum's positions on ``track``: before the braking zones of the QSS
+        profile of the run's reference line for its car (``training.curriculum``)."""
+        line = self.lines[track]
+        offsets = 0.0 if isinstance(line, str) else line
+        return braking_starts(self.tracks[track], offsets, self.spec.env.car_params())
 
     def test_limit_s(self, track: str, grip_scale: float) -> float:
         """The reference limit of ``track`` at ``grip_scale`` for the tests table, computed once

@@ -21,6 +21,7 @@ from formula_tourney.agents.buffers import ObservationWindow
 from formula_tourney.agents.core import Agent
 from formula_tourney.errors import UserInputError
 from formula_tourney.results.layout import TRACE_COLUMNS
+from formula_tourney.sim.env import as_controls
 from formula_tourney.training.checkpoint import load_run_checkpoint
 from formula_tourney.training.envs import RunEnvs
 
@@ -96,11 +97,12 @@ def run_test_episode(
         steps += 1
         if record_trace:
             x, y = _xy(info, track) if track is not None else (math.nan, math.nan)
+            steer, throttle, brake = as_controls(action)  # a pedal action's pedals, too
             rows.append((
                 steps * period_s, float(info.get("distance_m", math.nan)),
                 float(info.get("s_m", math.nan)), float(info.get("lateral_m", math.nan)), x, y,
-                float(info.get("speed_mps", math.nan)) * 3.6, float(action[0]), float(action[1]),
-                float(action[2]), float(info.get("laps", 0)),
+                float(info.get("speed_mps", math.nan)) * 3.6, float(steer), float(throttle),
+                float(brake), float(info.get("laps", 0)),
             ))  # fmt: skip
         if terminated or truncated:
             break

@@ -122,7 +122,7 @@ def train(
         BrakeExplorationNoise(
             np.random.default_rng(seq), agent_cfg.ou_theta, agent_cfg.ou_sigma,
             agent_cfg.noise_prob, agent_cfg.brake_explore_prob, agent_cfg.brake_explore_mean,
-            agent_cfg.brake_explore_sigma, agent_cfg.brake_explore_hold_steps,
+            agent_cfg.brake_explore_sigma, agent_cfg.brake_explore_hold_steps, action_dim,
         )
         for seq in noise_seeds
     ]  # fmt: skip

@@ -55,6 +55,7 @@ RUN_OWNED_HINTS: dict[str, str] = {
     "lac": "the setup's lac",
     "max_steps": "max_steps (training) and test_max_steps (tests)",
     "random_start": "random_start",
+    "curriculum_starts_m": "start_curriculum (the run finds them on its reference line)",
 }
 """Where to set each env key that a run owns, for the error when an override names one."""
 
@@ -345,9 +346,12 @@ class RunSpec(_Frozen):
 
 
 def _setting_label(key: str, value: Any) -> str:
-    """``KEY VALUE`` for a number, ``KEY`` for a switch that is on, ``no KEY`` for one off."""
+    """``KEY VALUE`` for a number or a name, ``KEY`` for a switch that is on, ``no KEY`` for one
+    off."""
     if isinstance(value, bool):
         return key if value else f"no {key}"
+    if isinstance(value, str):
+        return f"{key} {value}"
     return f"{key} {value:g}"
 
 
