@@ -45,6 +45,18 @@ def config_label(variant: str, reference: str, lac: bool) -> str:
     return f"{variant} {line_label(reference)}" + (" + LAC" if lac else "")
 
 
+def with_setup(label: str, beyond: list[str]) -> str:
+    """``label`` with what its runs add to the paper's setup (``RunSpec.beyond_paper``: preset,
+    demonstrations, ...), so runs of two setups never share a row: ``WIN1 (beyond paper: preset
+    fast-small)``; the bare label for the paper's own setup."""
+    return f"{label} (beyond paper: {', '.join(beyond)})" if beyond else label
+
+
+def entrant_label(name: str, reference: str, lac: bool, beyond: list[str]) -> str:
+    """``WIN1 RC + LAC (beyond paper: preset tuned-bc)``: a configuration and its setup."""
+    return with_setup(config_label(name, reference, lac), beyond)
+
+
 def bot_label(bot: str, reference: str | None = None) -> str:
     base = BOT_LABELS.get(str(bot), str(bot))
     return f"{base} {line_label(reference)}" if reference else base
@@ -215,19 +227,22 @@ def _jobs_with_tracks(data: TournamentData) -> pd.DataFrame:
     return jobs
 
 
-def _row_keys(jobs: pd.DataFrame, beyond_paper: dict[str, list[str]]) -> dict[str, str]:
-    """Row label per job: the variant (as in the paper), or the entrant name for jobs whose part
-    holds several entrants of one variant with the same line and LAC (e.g. an ablation pair);
-    a run that goes beyond the paper (another family, demonstrations, several cars) carries
-    "(beyond paper: ...)" so a replication is never mistaken for an improvement."""
-    keys: dict[str, str] = {}
+def row_names(jobs: pd.DataFrame) -> dict[str, str]:
+    """Row name per job: the variant (as in the paper), or the entrant name for jobs whose part
+    holds several entrants of one variant with the same line and LAC (e.g. an ablation pair)."""
+    names: dict[str, str] = {}
     for _, grp in jobs.groupby(["part", "reference", "lac", "variant"], sort=False):
         col = "entrant" if grp["entrant"].nunique() > 1 else "variant"
-        for job_id, name in zip(grp["job_id"], grp[col], strict=True):
-            extra = beyond_paper.get(str(job_id)) or []
-            keys[str(job_id)] = f"{name} (beyond paper: {', '.join(extra)})" if extra \
-                else str(name)
-    return keys
+        names.update(zip(grp["job_id"].astype(str), grp[col].astype(str), strict=True))
+    return names
+
+
+def _row_keys(jobs: pd.DataFrame, beyond_paper: dict[str, list[str]]) -> dict[str, str]:
+    """Row label per job: its ``row_names`` name; a run that goes beyond the paper (a preset,
+    another family, demonstrations, several cars) carries "(beyond paper: ...)" so a
+    replication is never mistaken for an improvement."""
+    return {job_id: with_setup(name, beyond_paper.get(job_id) or [])
+            for job_id, name in row_names(jobs).items()}
 
 
 def ordered_rows(jobs: pd.DataFrame, keys: dict[str, str]) -> list[tuple[str, str]]:
@@ -364,7 +379,9 @@ def table2(ctx: Context) -> ReportTable:
         return table
     cfg_jobs: dict[str, list[str]] = {}
     for _, job in jobs.loc[jobs["variant"].isin(lac_variants)].iterrows():
-        label = config_label(job["variant"], job["reference"], bool(job["lac"]))
+        # one row per configuration and setup: a preset's runs never share another's row
+        label = entrant_label(job["variant"], job["reference"], bool(job["lac"]),
+                              ctx.data.beyond_paper.get(str(job["job_id"])) or [])
         cfg_jobs.setdefault(label, []).append(str(job["job_id"]))
     tracks = list(dict.fromkeys(t for tl in jobs.loc[jobs["variant"].isin(lac_variants),
                                                     "train_tracks"] for t in tl))
