@@ -289,9 +289,9 @@ def test_two_presets_of_one_variant_are_never_pooled(ctx: Context) -> None:
     res = evaluate(two, claim(kind="faster", track="oval", b={"bot": "follower"},
                               a={"variant": "win1", "settings": {"adopted_target": True}}))
     assert [(c.label, c.a_runs) for c in res.comparisons] == [
-        ("win1 MOT on oval (beyond paper: preset fast-small) vs follower bot", fast),
+        ("win1 MOT on oval (beyond paper: preset fast-small) vs follower bot on recorded", fast),
         ("win1 MOT on oval (beyond paper: preset tuned-bc, demos (follower on mincurv)) "
-         "vs follower bot", tuned)]
+         "vs follower bot on recorded", tuned)]
     # the fixture's win1 laps by hand against the follower's 28.57 s
     assert res.comparisons[0].stats.effect == pytest.approx(28.57 - np.mean([27.1, 27.4, 27.2]))
     # a claim that pools says so, and gets one sample of five runs
@@ -299,7 +299,8 @@ def test_two_presets_of_one_variant_are_never_pooled(ctx: Context) -> None:
                                  pool=["setup"], a={"variant": "win1",
                                                     "settings": {"adopted_target": True}}))
     (comp,) = pooled.comparisons
-    assert comp.a_runs == fast + tuned and comp.label == "win1 MOT on oval vs follower bot"
+    assert comp.a_runs == fast + tuned
+    assert comp.label == "win1 MOT on oval vs follower bot on recorded"
     # selecting by preset and by label
     for group, runs in (({"preset": "tuned-bc"}, tuned), ({"preset": "fast*"}, fast),
                         ({"beyond_paper": "demos*"}, tuned),
@@ -341,8 +342,8 @@ def test_paper_2_rc_reads_racing_line_runs_with_lac(ctx: Context) -> None:
     paper = {c.id: c for c in shipped_set("paper").resolved()}
     res = evaluate(ctx, paper["paper-2-rc"])
     assert [c.label for c in res.comparisons] == [
-        "win4 RC on technical vs follower bot", "per1m RC on technical vs follower bot",
-        "per1m RC + LAC on technical vs follower bot"]
+        f"{a} on technical vs follower bot on recorded"
+        for a in ("win4 RC", "per1m RC", "per1m RC + LAC")]
     lac = res.comparisons[2]
     assert lac.a_runs == ["part3/per1m-rc-lac/seed-0", "part3/per1m-rc-lac/seed-1"]
     assert lac.stats.verdict == "supported"  # 65 + 2 e^-2 (+0.1) against 68.11

@@ -134,8 +134,8 @@ def bot_row_label(baselines: pd.DataFrame, bot: str, reference: str) -> tuple[st
 
 def bot_result(baselines: pd.DataFrame, bot: str, reference: str | None, track: str,
                part: str | None = None) -> dict[str, Any]:
-    """A bot's best clean lap on a track (in one part, or over all), DNF when it never finished
-    cleanly, missing when it was not run there."""
+    """A bot's best clean lap on a track (in one part, or over all) and the line it drove it
+    on, DNF when it never finished cleanly, missing when it was not run there."""
     if baselines.empty:
         return {"status": "missing", "bLT": math.nan, "damage": math.nan}
     sel = (baselines["bot"].astype(str) == bot) & (baselines["track"].astype(str) == track)
@@ -153,8 +153,9 @@ def bot_result(baselines: pd.DataFrame, bot: str, reference: str | None, track: 
     damage = float(rows["damage"].fillna(0).min())
     if clean.empty:
         return {"status": "DNF", "bLT": math.nan, "damage": damage}
-    return {"status": "ok", "bLT": float(clean["best_lap_s"].min()),
-            "damage": float(clean["damage"].fillna(0).min())}
+    best = clean.loc[clean["best_lap_s"].idxmin()]
+    return {"status": "ok", "bLT": float(best["best_lap_s"]),
+            "damage": float(clean["damage"].fillna(0).min()), "reference": str(best["reference"])}
 
 
 def fill_entry(row: dict[str, Any], group: str, st: dict[str, Any], metrics_: list[str]) -> None:

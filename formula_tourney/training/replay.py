@@ -49,7 +49,7 @@ from formula_tourney.training.evaluate import (
 )
 from formula_tourney.training.run_spec import RunSpec
 
-CAR_PX = 1.6 * MIN_CAR_PX
+CAR_PX = 2.0 * MIN_CAR_PX
 """Least length of the replayed car in pixels: one car alone must be seen at a glance."""
 SIZE_PX = 480
 """The track's drawing, as in the race GIF."""

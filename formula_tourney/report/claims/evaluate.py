@@ -227,6 +227,16 @@ def bot_score(ctx: Context, group: Group, track: str) -> float:
     return -float(res["bLT"]) if res["status"] == "ok" else -math.inf
 
 
+def bot_name(ctx: Context, group: Group, track: str | None) -> str:
+    """The bot side in a comparison's label, with the line whose lap it scored where the
+    claim left the line open (its best line: ``follower bot on mincurv``)."""
+    name = group.describe()
+    if group.bot_reference is not None or group.label or track is None:
+        return name
+    res = bot_result(ctx.data.baselines, str(group.bot), None, track)
+    return f"{name} on {res['reference']}" if res["status"] == "ok" else name
+
+
 def scores(ctx: Context, claim: Claim, jobs: pd.DataFrame, track: str | None
            ) -> tuple[list[str], list[float]]:
     """(job ids, scores) of the runs in ``jobs`` that have a value for this claim."""
@@ -312,8 +322,8 @@ def _entrant_comparisons(ctx: Context, claim: Claim, base: str, a_jobs: pd.DataF
                 sub_a, sub_b = paired(sub_a, sub_b, list(claim.pair_on))
                 if sub_a.empty or sub_b.empty:
                     continue
-            pair = (f"{claim.a.describe() if ent_a is None else ent_a.label} vs "
-                    f"{claim.b.describe() if ent_b is None else ent_b.label}")
+            pair = (f"{bot_name(ctx, claim.a, track) if ent_a is None else ent_a.label} vs "
+                    f"{bot_name(ctx, claim.b, track) if ent_b is None else ent_b.label}")
             out.append(_compare(ctx, claim, f"{base}: {pair}" if base else pair, sub_a, sub_b,
                                 track))
     if not out:
