@@ -28,15 +28,16 @@ from formula_tourney.report.plots import slug as _slug
 
 def plot_performance_profile(ratios: pd.DataFrame, title: str, out_base: Path) -> list[Path]:
     """Fraction of runs with lap / reference limit <= tau, per entrant, and over all runs where
-    they share one setup, with 95 % bootstrap bands (rliable's performance profile)."""
+    they share one setup, with 95 % bootstrap bands (rliable's performance profile). Entrant
+    labels name their setup and are long: the legend sits below the axes, one per line."""
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(8, 4.5))
-    taus = profiles.tau_grid(ratios["ratio"].to_numpy(dtype=float))
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     groups = [(g, grp["ratio"].to_numpy(dtype=float)) for g, grp in
               ratios.groupby("group", sort=False)]
     if ratios["setup"].nunique() == 1:  # runs of two presets are never pooled
         groups.append(("all runs", ratios["ratio"].to_numpy(dtype=float)))
+    fig, ax = plt.subplots(figsize=(8, 4.5 + 0.3 * len(groups)))
+    taus = profiles.tau_grid(ratios["ratio"].to_numpy(dtype=float))
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for k, (name, values) in enumerate(groups):
         mid, low, high = profiles.profile_band(values, taus)
         colour = "black" if name == "all runs" else colours[k % len(colours)]
@@ -49,7 +50,8 @@ def plot_performance_profile(ratios: pd.DataFrame, title: str, out_base: Path) -
     ax.set_ylim(-0.02, 1.02)
     ax.set_title(title)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, ncol=2)
+    ax.legend(fontsize=7, ncol=1, loc="upper left", bbox_to_anchor=(0.0, -0.14),
+              frameon=False)
     return save_figure(fig, out_base)
 
 
@@ -108,5 +110,6 @@ def make_claim_figures(ctx: Context, results: list[ClaimResult],
     ratios = profiles.run_ratios(ctx)
     if not ratios.empty and np.isfinite(ratios["ratio"]).any():
         figures["profile"] = plot_performance_profile(
-            ratios, f"Performance profile, {ctx.data.name}: all runs", out_dir / "profile")
+            ratios, f"Performance profile, {ctx.data.name}: one curve per entrant",
+            out_dir / "profile")
     return figures
