@@ -17,7 +17,7 @@ from formula_tourney.claims.schema import Claim, shipped_set
 from formula_tourney.cli import main
 from formula_tourney.errors import UserInputError
 from formula_tourney.report.claims import profiles
-from formula_tourney.report.claims.evaluate import evaluate
+from formula_tourney.report.claims.evaluate import PAPER_PRESET, evaluate, preset_of
 from formula_tourney.report.claims.evidence import compare_scores, overall
 from formula_tourney.report.claims.sources import load_claims_file, resolve_claims
 from formula_tourney.report.load import load_tournament
@@ -25,7 +25,7 @@ from formula_tourney.report.paper_tables import Context, table2
 from formula_tourney.results.folder import JobFolder
 from formula_tourney.tourney.spec import parse_spec
 from formula_tourney.training.loop import train
-from formula_tourney.training.run_spec import build_run_spec
+from formula_tourney.training.run_spec import RunSpec, build_run_spec
 
 E2 = 2.0 * math.exp(-2.0)  # the fixture template's learning term at episode 300
 
@@ -301,7 +301,9 @@ def test_two_presets_of_one_variant_are_never_pooled(ctx: Context) -> None:
     (comp,) = pooled.comparisons
     assert comp.a_runs == fast + tuned
     assert comp.label == "win1 MOT on oval vs follower bot on recorded"
-    # selecting by preset and by label
+    # selecting by preset and by label (a run spec without a preset is the paper's)
+    assert RunSpec.model_fields["preset"].default == PAPER_PRESET
+    assert preset_of(two, "part1/win4/seed-0") == PAPER_PRESET
     for group, runs in (({"preset": "tuned-bc"}, tuned), ({"preset": "fast*"}, fast),
                         ({"beyond_paper": "demos*"}, tuned),
                         ({"variant": "win1", "beyond_paper": []},

@@ -42,7 +42,6 @@ def first_train_track(job: pd.Series) -> str:
 class Entrant:
     """Runs alike in every key not pooled: what they share and the label tables use."""
 
-    key: tuple[object, ...]
     label: str
     setup: tuple[str, ...] | None
     """The runs' beyond-paper labels; None where the setup is pooled."""
@@ -92,10 +91,10 @@ def entrants(ctx: Context, jobs: pd.DataFrame, pool: Iterable[str] = (),
                    train_track=first_train_track(job),
                    setup=tuple(ctx.data.beyond_paper.get(job_id) or ()))
         groups.setdefault(run.key(keys), (run, []))[1].append(job_id)
-    return [Entrant(key=key, label=run.label(keys, pooled_name),
+    return [Entrant(label=run.label(keys, pooled_name),
                     setup=run.setup if "setup" in keys else None,
                     jobs=jobs.loc[jobs["job_id"].astype(str).isin(job_ids)])
-            for key, (run, job_ids) in groups.items()]
+            for run, job_ids in groups.values()]
 
 
 def entrant_labels(ctx: Context) -> dict[str, str]:
