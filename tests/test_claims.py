@@ -17,15 +17,15 @@ from formula_tourney.claims.schema import Claim, shipped_set
 from formula_tourney.cli import main
 from formula_tourney.errors import UserInputError
 from formula_tourney.report.claims import profiles
-from formula_tourney.report.claims.evaluate import evaluate
+from formula_tourney.report.claims.evaluate import PAPER_PRESET, evaluate, preset_of
 from formula_tourney.report.claims.evidence import compare_scores, overall
 from formula_tourney.report.claims.sources import load_claims_file, resolve_claims
 from formula_tourney.report.load import load_tournament
-from formula_tourney.report.paper_tables import Context
+from formula_tourney.report.paper_tables import Context, table2
 from formula_tourney.results.folder import JobFolder
 from formula_tourney.tourney.spec import parse_spec
 from formula_tourney.training.loop import train
-from formula_tourney.training.run_spec import build_run_spec
+from formula_tourney.training.run_spec import RunSpec, build_run_spec
 
 E2 = 2.0 * math.exp(-2.0)  # the fixture template's learning term at episode 300
 
@@ -134,7 +134,11 @@ def test_reward_claim_split_and_missing_runs(ctx: Context) -> None:
     res = evaluate(ctx, claim(kind="faster", track="technical", split_b="family",
                               a={"part": "part2", "entrant": "per1m-rc"},
                               b={"part": "part2"}))
-    assert [c.label for c in res.comparisons] == ["vs family win", "vs family per"]
+    # B split by family, then into entrants: per1m-rc meets each other line and variant
+    assert [c.label for c in res.comparisons] == [
+        "per1m RC on technical vs win4 MOT on technical",
+        "per1m RC on technical vs win4 RC on technical",
+        "per1m RC on technical vs per1m MOT on technical"]
     res = evaluate(ctx, claim(kind="faster", track="oval", a={"variant": "WIN9"},
                               b={"bot": "follower"}))
     assert res.verdict == "no data"
@@ -256,3 +260,92 @@ def test_a_run_repeated_in_another_part_counts_once(ctx: Context) -> None:
                                               a={"part": "part1", "entrant": "win1"},
                                               b={"part": "part1", "entrant": "win4"}))
     assert res.comparisons[0].b_runs == ["part1/win4/seed-0", "part1/win4/seed-1"]
+
+
+FAST = ["preset fast-small"]
+TUNED_BC = ["preset tuned-bc", "demos (follower on mincurv)"]
+
+
+def with_presets(ctx: Context, presets: dict[str, tuple[str, list[str]]]) -> Context:
+    """The fixture with the jobs under each prefix trained from another preset: its name in the
+    run spec and its beyond-paper labels, as ``training.loop`` writes them to config.json."""
+    data = copy.deepcopy(ctx.data)
+    for job_id in list(data.configs):
+        for prefix, (preset, labels) in presets.items():
+            if job_id.startswith(prefix):
+                data.configs[job_id] = {**data.configs[job_id], "preset": preset}
+                data.beyond_paper[job_id] = list(labels)
+    return Context.build(data)
+
+
+def test_two_presets_of_one_variant_are_never_pooled(ctx: Context) -> None:
+    """WIN1 on the oval from two presets (part1's three seeds fast-small, the ablation's two
+    tuned-bc with demos): two entrants in every claim and in the profile, selectable by preset
+    and label, and compared with runs of their own setup only."""
+    two = with_presets(ctx, {"part1/win1/": ("fast-small", FAST),
+                             "ablation/win1/": ("tuned-bc", TUNED_BC)})
+    fast = ["part1/win1/seed-0", "part1/win1/seed-1", "part1/win1/seed-2"]
+    tuned = ["ablation/win1/seed-0", "ablation/win1/seed-1"]
+    res = evaluate(two, claim(kind="faster", track="oval", b={"bot": "follower"},
+                              a={"variant": "win1", "settings": {"adopted_target": True}}))
+    assert [(c.label, c.a_runs) for c in res.comparisons] == [
+        ("win1 MOT on oval (beyond paper: preset fast-small) vs follower bot on recorded", fast),
+        ("win1 MOT on oval (beyond paper: preset tuned-bc, demos (follower on mincurv)) "
+         "vs follower bot on recorded", tuned)]
+    # the fixture's win1 laps by hand against the follower's 28.57 s
+    assert res.comparisons[0].stats.effect == pytest.approx(28.57 - np.mean([27.1, 27.4, 27.2]))
+    # a claim that pools says so, and gets one sample of five runs
+    pooled = evaluate(two, claim(kind="faster", track="oval", b={"bot": "follower"},
+                                 pool=["setup"], a={"variant": "win1",
+                                                    "settings": {"adopted_target": True}}))
+    (comp,) = pooled.comparisons
+    assert comp.a_runs == fast + tuned
+    assert comp.label == "win1 MOT on oval vs follower bot on recorded"
+    # selecting by preset and by label (a run spec without a preset is the paper's)
+    assert RunSpec.model_fields["preset"].default == PAPER_PRESET
+    assert preset_of(two, "part1/win4/seed-0") == PAPER_PRESET
+    for group, runs in (({"preset": "tuned-bc"}, tuned), ({"preset": "fast*"}, fast),
+                        ({"beyond_paper": "demos*"}, tuned),
+                        ({"variant": "win1", "beyond_paper": []},
+                         ["ablation/win1-noat/seed-0", "ablation/win1-noat/seed-1"])):
+        res = evaluate(two, claim(kind="faster", track="oval", a=group, b={"bot": "follower"}))
+        assert [r for c in res.comparisons for r in c.a_runs] == runs
+    # runs against runs: only entrants of one setup meet; part1's win4 is of the paper's
+    res = evaluate(two, claim(kind="faster", track="oval", a={"preset": "fast-small"},
+                              b={"part": "part1", "variant": "win4"}))
+    assert res.comparisons == [] and res.verdict == "no data"
+    assert any("no entrant of A has one of B with the same setup" in n for n in res.notes)
+    res = evaluate(two, claim(kind="faster", track="oval", a={"preset": "fast-small"},
+                              b={"part": "part1", "variant": "win4"}, pool=["setup"]))
+    assert [c.label for c in res.comparisons] == ["win1 MOT on oval vs win4 MOT on oval"]
+    # the profile: one curve per preset, never "win1 (n=5)"
+    ratios = profiles.run_ratios(two)
+    by_group = ratios.groupby("group", sort=False)["job_id"].apply(list).to_dict()
+    assert by_group["win1 MOT on oval (beyond paper: preset fast-small)"] == fast
+    assert by_group["win1 MOT on oval (beyond paper: preset tuned-bc, demos (follower on "
+                    "mincurv))"] == tuned
+    assert ratios["setup"].nunique() == 3  # fast-small, tuned-bc + demos, the paper's
+
+
+def test_table2_rows_name_their_preset(ctx: Context) -> None:
+    """part2's per1m-rc trained fast-small: its own Table 2 row beside part3's paper-setup
+    per1m RC, each with its own best lap (template: 66 + 1.5 + 2 e^-2, seed 0)."""
+    two = with_presets(ctx, {"part2/per1m-rc/": ("fast-small", FAST)})
+    rows = {r["row"]: r for r in table2(two).records if r["track"] == "technical"}
+    assert "per1m RC (beyond paper: preset fast-small)" in rows and "per1m RC" in rows
+    assert rows["per1m RC (beyond paper: preset fast-small)"]["runs"] == 3
+    assert rows["per1m RC"]["runs"] == 2  # part3's two seeds
+    assert rows["per1m RC"]["bLT"] == pytest.approx(67.5 + E2)
+
+
+def test_paper_2_rc_reads_racing_line_runs_with_lac(ctx: Context) -> None:
+    """The paper's finding 2 on the fixture: part2's per1m RC and win4 RC, part3's per1m RC
+    and per1m RC + LAC, each an entrant of its own against the follower on technical."""
+    paper = {c.id: c for c in shipped_set("paper").resolved()}
+    res = evaluate(ctx, paper["paper-2-rc"])
+    assert [c.label for c in res.comparisons] == [
+        f"{a} on technical vs follower bot on recorded"
+        for a in ("win4 RC", "per1m RC", "per1m RC + LAC")]
+    lac = res.comparisons[2]
+    assert lac.a_runs == ["part3/per1m-rc-lac/seed-0", "part3/per1m-rc-lac/seed-1"]
+    assert lac.stats.verdict == "supported"  # 65 + 2 e^-2 (+0.1) against 68.11

@@ -1,5 +1,5 @@
 """``formula-tourney report`` end to end: JSON, LaTeX (compiled where pdflatex exists), HTML and
-figures, and ``replay``'s lap recorder and GIF writer on a stand-in env."""
+figures, and ``replay``'s arguments and GIF on an untrained actor."""
 
 from __future__ import annotations
 
@@ -20,7 +20,6 @@ from formula_tourney.report import plots
 from formula_tourney.report.build import build_report
 from formula_tourney.report.load import load_tournament
 from formula_tourney.results.folder import BaselineFolder, JobFolder
-from formula_tourney.training.replay import record_lap, write_gif
 
 
 @pytest.fixture(scope="module")
@@ -282,54 +281,6 @@ def test_delta_time_by_hand() -> None:
     grid, delta = plots.delta_time(a, b, points=5)
     np.testing.assert_allclose(grid, [0, 25, 50, 75, 100])
     np.testing.assert_allclose(delta, grid / 10.0 - grid / 20.0)
-
-
-class _StandInEnv:
-    """Drives 10 m per step along a 95 m lap; renders a frame whose colour encodes the step."""
-
-    def __init__(self, lap_m: float = 95.0) -> None:
-        self.lap_m = lap_m
-        self.distance = 0.0
-        self.steps = 0
-        self.windows: list[tuple[int, ...]] = []
-
-    def reset(self, seed: int | None = None):
-        self.distance, self.steps = 0.0, 0
-        return np.zeros(4, np.float32), {}
-
-    def step(self, action):
-        self.steps += 1
-        self.distance += 10.0 * float(action[1])
-        laps = int(self.distance // self.lap_m)
-        info = {"laps": laps, "lap_times_s": [1.9] * laps, "damage": 0.0, "termination": None}
-        return np.full(4, self.steps, np.float32), 1.0, False, False, info
-
-    def render(self):
-        frame = np.zeros((40, 60, 3), np.uint8)
-        frame[..., 0] = (self.steps * 20) % 256
-        return frame
-
-
-def test_record_lap_and_gif(tmp_path: Path) -> None:
-    env = _StandInEnv()
-    seen: list[np.ndarray] = []
-
-    def policy(window: np.ndarray) -> np.ndarray:
-        seen.append(window.copy())
-        return np.array([0.0, 1.0, 0.0], np.float32)
-
-    result = record_lap(env, policy, window=3, max_steps=100, frame_every=2)
-    assert result["ending"] == "lap" and result["steps"] == 10  # 10 x 10 m passes 95 m
-    assert len(result["frames"]) == 1 + 5  # the reset frame + steps 2, 4, 6, 8, 10
-    assert seen[0].shape == (3, 4) and np.all(seen[0] == 0)  # padded with the first obs
-    np.testing.assert_array_equal(seen[2][:, 0], [0, 1, 2])
-    gif = write_gif(result["frames"], tmp_path / "lap.gif", 400.0)
-    with Image.open(gif) as img:
-        assert img.n_frames == 6 and img.info["duration"] == 400
-    with pytest.raises(UserInputError):
-        write_gif([], tmp_path / "none.gif", 100.0)
-    stalled = record_lap(_StandInEnv(), lambda w: np.zeros(3, np.float32), max_steps=7)
-    assert stalled["ending"] == "max_steps" and stalled["steps"] == 7
 
 
 def test_replay_rejects_bad_arguments(tmp_path: Path, capsys) -> None:

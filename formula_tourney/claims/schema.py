@@ -32,8 +32,11 @@ SHIPPED_SETS: tuple[str, ...] = tuple(sorted(p.stem for p in SETS_DIR.glob("*.to
 Kind = Literal["faster", "finishes_more", "higher_reward"]
 SplitBy = Literal["none", "family", "variant", "entrant"]
 PairKey = Literal["part", "variant", "reference", "lac", "train_track"]
-RUN_SELECTORS: tuple[str, ...] = ("part", "entrant", "variant", "family", "reference", "lac",
-                                  "train_track", "settings")  # fmt: skip
+PoolKey = Literal["variant", "line", "train_track", "setup"]
+"""What makes runs one entrant (``report.claims.entrants``); a claim may pool runs across them."""
+RUN_SELECTORS: tuple[str, ...] = ("part", "entrant", "variant", "family", "preset",
+                                  "beyond_paper", "reference", "lac", "train_track",
+                                  "settings")  # fmt: skip
 
 
 class _Strict(BaseModel):
@@ -57,6 +60,14 @@ class Group(_Strict):
                                       "shell patterns allowed.")
     family: list[str] | None = Field(None, description="Families (DDPG, LSTM, MS, PER, TD3, "
                                      "SAC; or a tournament's own).")
+    preset: list[str] | None = Field(None, description="Presets the runs started from "
+                                     "(paper, fast-small, tuned, tuned-bc, ...); shell patterns "
+                                     "allowed.")
+    beyond_paper: list[str] | None = Field(
+        None, description="What the runs add to the paper's setup, as the tables label it "
+        "(e.g. \"preset tuned-bc\", \"demos (follower on mincurv)\"): each pattern must match "
+        "one of a run's labels (shell patterns, e.g. \"demos*\"); [] selects runs of the "
+        "paper's own setup only.")
     reference: list[ReferenceKind] | None = Field(
         None, description="Reference lines of the runs: centre (MOT), recorded (RC), mincurv.")
     lac: bool | None = Field(None, description="Runs with (true) or without (false) look-ahead "
@@ -72,8 +83,9 @@ class Group(_Strict):
     bot_reference: LineKind | None = Field(
         None, description="Line the bot drove (default: its best over the lines it drove).")
 
-    _listify = field_validator("part", "entrant", "variant", "family", "reference",
-                               "train_track", mode="before")(_as_list)
+    _listify = field_validator("part", "entrant", "variant", "family", "preset",
+                               "beyond_paper", "reference", "train_track",
+                               mode="before")(_as_list)
 
     @model_validator(mode="after")
     def _bot_or_runs(self) -> Group:
@@ -99,7 +111,9 @@ class Group(_Strict):
             value = getattr(self, key)
             if value is None:
                 continue
-            if isinstance(value, list):
+            if key == "beyond_paper" and not value:
+                bits.append("the paper's setup")
+            elif isinstance(value, list):
                 bits.append(f"{key} {'/'.join(map(str, value))}")
             elif isinstance(value, dict):
                 bits.append(", ".join(f"{k}={v}" for k, v in value.items()))
@@ -128,6 +142,14 @@ class Claim(_Strict):
                              "or entrant: A must beat each (e.g. 'the best family').")
     pair_on: list[PairKey] = Field(default_factory=list, description="Compare only runs of A "
                                    "and B that share these values (e.g. part, variant).")
+    pool: list[PoolKey] = Field(
+        default_factory=list, description="What may differ among one side's runs and still "
+        "make one sample. Unpooled, each side is split into entrants, runs alike in variant "
+        "(the tables' row name), line (reference line and LAC), train_track and setup (preset "
+        "and every other beyond-paper label); each entrant of A is compared with each of B's "
+        "with the same setup, and the claim holds only if every comparison supports it. "
+        "E.g. pool = [\"variant\"]: the WIN family as one group; pool = [\"setup\"]: compare "
+        "across presets.")
     smooth: int = Field(20, ge=1, le=1000, description="higher_reward: moving-average window "
                         "in episodes.")
 

@@ -1,4 +1,5 @@
-"""CLI commands of the agents area: ``train`` one run, ``eval`` a checkpoint, list ``variants``.
+"""CLI commands of the agents area: ``train`` one run, ``eval`` a checkpoint, ``replay`` one of
+its tests, list ``variants``.
 
 Heavy imports (torch, the simulator) happen inside the commands so ``--help`` stays instant.
 """
@@ -155,6 +156,77 @@ def register(app: typer.Typer) -> None:
         result = evaluate_checkpoint(str(checkpoint), track, starts, max_steps, device, reference,
                                      grip_scale=grip)
         emit(result, as_json, _render_result(result))
+
+    @app.command("replay")
+    def replay_cmd(
+        target: Path = typer.Argument(
+            ..., help="A checkpoint (.pt) of a trained job; with --best, the job's folder (or a "
+            "checkpoint in it)."),
+        track: str | None = typer.Option(
+            None, "--track", help="Track to drive (default: the run's first train track)."),
+        best: bool = typer.Option(
+            False, "--best", help="Replay the test that made the run's best clean lap on the "
+            "track, found as the tables find it (its start, grip, seed and checkpoint), and "
+            "check that it drives the table's lap time; exit 1 if not."),
+        start_s_m: float | None = typer.Option(
+            None, "--start-s-m", help="Where the test starts, m along the centre line (a "
+            "tests.parquet row's start_s_m; default: the run's first test start, 50 m before "
+            "the line)."),
+        grip: float | None = typer.Option(
+            None, "--grip", help="Grip scale (a row's grip_scale; default: the run's)."),
+        seed: int | None = typer.Option(
+            None, "--seed", help="Seed of the drive (default: the one the run's tests use at "
+            "that start)."),
+        gif: Path | None = typer.Option(
+            None, "--gif", help="GIF to write: the drive's best clean lap, or the whole drive "
+            "without one."),
+        max_steps: int | None = typer.Option(
+            None, "--max-steps", min=1, help="Control steps at most (default: the run's "
+            "test_max_steps, as its tests)."),
+        frame_every: int = typer.Option(
+            2, "--frame-every", min=1, help="Keep every n-th control step as a GIF frame."),
+        device: str = typer.Option("cpu", help="auto|cpu|cuda."),
+        as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
+    ) -> None:
+        """Drive one test of a trained actor again (no exploration): the same start, grip and
+        seed give the same laps as its row in tests.parquet; --best finds the table's."""
+        from formula_tourney.training.replay import replay, replay_best
+
+        options: dict[str, Any] = {"max_steps": max_steps, "frame_every": frame_every,
+                                   "device": device}
+        if best:
+            given = [name for name, value in (("--start-s-m", start_s_m), ("--grip", grip),
+                                              ("--seed", seed)) if value is not None]
+            if given:
+                raise UserInputError(f"--best drives the best test's own start, grip and seed: "
+                                     f"leave out {', '.join(given)}")
+            job = target.parent.parent if target.is_file() else target
+            summary = replay_best(job, track, gif, **options)
+        else:
+            summary = replay(target, track, gif, start_s_m=start_s_m, grip_scale=grip,
+                             seed=seed, **options)
+
+        def render(console: Any) -> None:
+            laps = ", ".join(f"{t:.3f} s" + ("" if d <= 0 else " (damaged)")
+                             for t, d in zip(summary["lap_times_s"], summary["lap_damage"],
+                                             strict=True)) or "no timed lap"
+            lines = [f"{summary['track']} from {summary['start_s_m']:.1f} m, grip "
+                     f"{summary['grip_scale']:.2f}, seed {summary['seed']}: ended by "
+                     f"{summary['termination']} after {summary['steps']} steps; laps: {laps}"]
+            if summary["best_lap_s"] is not None:
+                lines.append(f"best clean lap {summary['best_lap_s']:.3f} s")
+            if best:
+                lines.append(f"the table's lap: {summary['table_lap_s']:.3f} s (episode "
+                             f"{summary['episode']}): "
+                             + ("reproduced" if summary["reproduced"] else "NOT reproduced"))
+            if summary["gif"]:
+                lines.append(f"{summary['gif']}: {summary['frames']} frames")
+            for line in lines:
+                console.print(line, markup=False, highlight=False)
+
+        emit(summary, as_json, render)
+        if best and not summary["reproduced"]:
+            raise typer.Exit(1)
 
     @app.command("variants")
     def variants_cmd(

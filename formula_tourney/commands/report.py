@@ -1,4 +1,4 @@
-"""CLI: ``report`` (the paper's tables, statistics, figures) and ``replay`` (a lap as a GIF)."""
+"""CLI: ``report`` (the paper's tables, statistics, figures)."""
 
 from __future__ import annotations
 
@@ -59,29 +59,3 @@ def register(app: typer.Typer) -> None:
             for line in built.written():  # stdout is the Markdown document alone
                 message(line)
         emit(built.to_json(), as_json, built.render)
-
-    @app.command()
-    def replay(
-        checkpoint: Annotated[Path, typer.Argument(help="A checkpoint (.pt) of a trained job.")],
-        track: Annotated[str, typer.Option(help="Track to drive (name or path).")],
-        gif: Annotated[Path, typer.Option(help="GIF file to write.")],
-        laps: Annotated[int, typer.Option(min=1, help="Timed laps to record.")] = 1,
-        max_steps: Annotated[int, typer.Option(min=1, help="Control steps at most.")] = 3000,
-        frame_every: Annotated[int, typer.Option(
-            min=1, help="Keep every n-th control step as a frame.")] = 2,
-        as_json: Annotated[bool, typer.Option("--json", help="Print one JSON document.")] = False,
-    ) -> None:
-        """Drive one lap with a trained actor (no exploration) and write it as a GIF."""
-        from formula_tourney.commands.output import emit
-        from formula_tourney.training.replay import replay as run_replay
-
-        summary = run_replay(checkpoint, track, gif, max_steps=max_steps,
-                             frame_every=frame_every, laps=laps)
-
-        def render(console) -> None:
-            laps_s = ", ".join(f"{t:.2f} s" for t in summary["lap_times_s"]) or "no timed lap"
-            console.print(f"{summary['gif']}: {summary['frames']} frames, {summary['steps']} "
-                          f"steps, ended by {summary['ending']}, laps: {laps_s}",
-                          markup=False, highlight=False)
-
-        emit(summary, as_json, render)

@@ -52,6 +52,18 @@ def config_label(variant: str, reference: str, lac: bool) -> str:
     return f"{variant} {line_label(reference)}" + (" + LAC" if lac else "")
 
 
+def with_setup(label: str, beyond: list[str]) -> str:
+    """``label`` with what its runs add to the paper's setup (``RunSpec.beyond_paper``: preset,
+    demonstrations, ...), so runs of two setups never share a row: ``WIN1 (beyond paper: preset
+    fast-small)``; the bare label for the paper's own setup."""
+    return f"{label} (beyond paper: {', '.join(beyond)})" if beyond else label
+
+
+def entrant_label(name: str, reference: str, lac: bool, beyond: list[str]) -> str:
+    """``WIN1 RC + LAC (beyond paper: preset tuned-bc)``: a configuration and its setup."""
+    return with_setup(config_label(name, reference, lac), beyond)
+
+
 def bot_label(bot: str, reference: str | None = None) -> str:
     base = BOT_LABELS.get(str(bot), str(bot))
     return f"{base} {line_label(reference)}" if reference else base
@@ -129,8 +141,8 @@ def bot_row_label(baselines: pd.DataFrame, bot: str, reference: str) -> tuple[st
 
 def bot_result(baselines: pd.DataFrame, bot: str, reference: str | None, track: str,
                part: str | None = None) -> dict[str, Any]:
-    """A bot's best clean lap on a track (in one part, or over all), DNF when it never finished
-    cleanly, missing when it was not run there."""
+    """A bot's best clean lap on a track (in one part, or over all) and the line it drove it
+    on, DNF when it never finished cleanly, missing when it was not run there."""
     if baselines.empty:
         return {"status": "missing", "bLT": math.nan, "damage": math.nan}
     sel = (baselines["bot"].astype(str) == bot) & (baselines["track"].astype(str) == track)
@@ -148,8 +160,9 @@ def bot_result(baselines: pd.DataFrame, bot: str, reference: str | None, track: 
     damage = float(rows["damage"].fillna(0).min())
     if clean.empty:
         return {"status": "DNF", "bLT": math.nan, "damage": damage}
-    return {"status": "ok", "bLT": float(clean["best_lap_s"].min()),
-            "damage": float(clean["damage"].fillna(0).min())}
+    best = clean.loc[clean["best_lap_s"].idxmin()]
+    return {"status": "ok", "bLT": float(best["best_lap_s"]),
+            "damage": float(clean["damage"].fillna(0).min()), "reference": str(best["reference"])}
 
 
 def fill_entry(row: dict[str, Any], group: str, st: dict[str, Any], metrics_: list[str]) -> None:
@@ -233,19 +246,22 @@ def _jobs_with_tracks(data: TournamentData) -> pd.DataFrame:
     return jobs
 
 
-def _row_keys(jobs: pd.DataFrame, beyond_paper: dict[str, list[str]]) -> dict[str, str]:
-    """Row label per job: the variant (as in the paper), or the entrant name for jobs whose part
-    holds several entrants of one variant with the same line and LAC (e.g. an ablation pair);
-    a run that goes beyond the paper (another family, demonstrations, several cars) carries
-    "(beyond paper: ...)" so a replication is never mistaken for an improvement."""
-    keys: dict[str, str] = {}
+def row_names(jobs: pd.DataFrame) -> dict[str, str]:
+    """Row name per job: the variant (as in the paper), or the entrant name for jobs whose part
+    holds several entrants of one variant with the same line and LAC (e.g. an ablation pair)."""
+    names: dict[str, str] = {}
     for _, grp in jobs.groupby(["part", "reference", "lac", "variant"], sort=False):
         col = "entrant" if grp["entrant"].nunique() > 1 else "variant"
-        for job_id, name in zip(grp["job_id"], grp[col], strict=True):
-            extra = beyond_paper.get(str(job_id)) or []
-            keys[str(job_id)] = f"{name} (beyond paper: {', '.join(extra)})" if extra \
-                else str(name)
-    return keys
+        names.update(zip(grp["job_id"].astype(str), grp[col].astype(str), strict=True))
+    return names
+
+
+def _row_keys(jobs: pd.DataFrame, beyond_paper: dict[str, list[str]]) -> dict[str, str]:
+    """Row label per job: its ``row_names`` name; a run that goes beyond the paper (a preset,
+    another family, demonstrations, several cars) carries "(beyond paper: ...)" so a
+    replication is never mistaken for an improvement."""
+    return {job_id: with_setup(name, beyond_paper.get(job_id) or [])
+            for job_id, name in row_names(jobs).items()}
 
 
 def ordered_rows(jobs: pd.DataFrame, keys: dict[str, str]) -> list[tuple[str, str]]:
@@ -390,7 +406,9 @@ def table2(ctx: Context) -> ReportTable:
         return table
     cfg_jobs: dict[str, list[str]] = {}
     for _, job in jobs.loc[jobs["variant"].isin(lac_variants)].iterrows():
-        label = config_label(job["variant"], job["reference"], bool(job["lac"]))
+        # one row per configuration and setup: a preset's runs never share another's row
+        label = entrant_label(job["variant"], job["reference"], bool(job["lac"]),
+                              ctx.data.beyond_paper.get(str(job["job_id"])) or [])
         cfg_jobs.setdefault(label, []).append(str(job["job_id"]))
     tracks = list(dict.fromkeys(t for tl in jobs.loc[jobs["variant"].isin(lac_variants),
                                                     "train_tracks"] for t in tl))

@@ -8,5 +8,5 @@ Modules, in the order data flows through them:
   as demonstrations; ``collect``: driving cars into the replay buffer; ``budget``: the CPU clock
   and the rule that ends a run early; ``evaluate``: the greedy tests.
 - ``loop``: one run, written through ``results.folder``; ``checkpoint``: a run's checkpoint read
-  back with its run spec; ``replay``: one lap of a trained actor as a GIF.
+  back with its run spec; ``replay``: one test of a trained actor driven again (a GIF of its lap).
 """

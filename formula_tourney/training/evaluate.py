@@ -4,6 +4,11 @@ A single test from one start is very noisy (an actor that lapped cleanly from 4 
 from the fifth), so every test drives from ``starts`` positions spread over the lap and
 keeps every lap: its time, its damage and whether it was clean. The best clean lap's per-step trace
 is kept for plots.
+
+A test drive is fixed by the actor, the track, its start, its grip and its seed
+(``drive_seed``); ``run_test_episode`` is the one function that drives it, for the tests of a
+run and for ``replay``, so a replayed test drives the very laps its row in ``tests.parquet``
+records.
 """
 
 from __future__ import annotations
@@ -42,6 +47,9 @@ class DriveResult:
     best_trace: pd.DataFrame | None = field(default=None, repr=False)
     grip_scale: float = math.nan
     """The grip the drive ran at (the env's ``info["grip_scale"]``)."""
+    steps_trace: pd.DataFrame | None = field(default=None, repr=False)
+    """Every step of the drive (trace columns and ``laps``, time from the start), where asked
+    for (``keep_steps``): what ``replay`` draws when the drive has no clean lap."""
 
     @property
     def laps(self) -> int:
@@ -66,6 +74,12 @@ def start_positions(length_m: float, starts: int, before_line_m: float = 50.0) -
             for k in range(starts)]  # fmt: skip
 
 
+def drive_seed(run_seed: int, start_index: int) -> int:
+    """The seed of a run's test drive from its ``start_index``-th start (``start_positions``):
+    every start of every run resets the env from a seed of its own."""
+    return int(run_seed) * 1000 + int(start_index)
+
+
 def _xy(info: dict[str, Any], track: Any) -> tuple[float, float]:
     if "x_m" in info and "y_m" in info:
         return float(info["x_m"]), float(info["y_m"])
@@ -80,8 +94,10 @@ def run_test_episode(
     start_s_m: float,
     seed: int,
     record_trace: bool = True,
+    keep_steps: bool = False,
 ) -> DriveResult:
-    """Drive one greedy episode from ``start_s_m`` (at rest) until the env ends it."""
+    """Drive one greedy episode from ``start_s_m`` (at rest) until the env ends it; the best
+    clean lap's trace with ``record_trace``, every step's with ``keep_steps``."""
     track = getattr(env.unwrapped, "track", None)
     period_s = float(getattr(env.unwrapped, "config", {}).get("control_period_s", 0.2))
     obs, info = env.reset(seed=seed, options={"start_s_m": float(start_s_m)})
@@ -95,7 +111,7 @@ def run_test_episode(
         obs, reward, terminated, truncated, info = env.step(action)
         total_reward += float(reward)
         steps += 1
-        if record_trace:
+        if record_trace or keep_steps:
             x, y = _xy(info, track) if track is not None else (math.nan, math.nan)
             steer, throttle, brake = as_controls(action)  # a pedal action's pedals, too
             rows.append((
@@ -123,6 +139,10 @@ def run_test_episode(
     )
     if record_trace and math.isfinite(ep.best_lap_s):
         ep.best_trace = _lap_trace(rows, lap_times, lap_damage, ep.best_lap_s)
+    if keep_steps:
+        ep.steps_trace = pd.DataFrame(np.asarray(rows, dtype=float).reshape(-1, len(TRACE_COLUMNS)
+                                                                            + 1),
+                                      columns=[*TRACE_COLUMNS, "laps"])
     return ep
 
 
@@ -179,7 +199,7 @@ def other_grip_tests(
     episode: int,
     env_steps: int,
     checkpoint: str,
-    seed: int,
+    run_seed: int,
 ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """One test round on ``track`` at each of the run's other grips (``RunSpec.test_grips``
     after the first): its tests and laps rows, from the same starts and seeds as the round at
@@ -195,7 +215,8 @@ def other_grip_tests(
             key, envs.make(track, test=True, grip_scale=grip))
         limit = envs.test_limit_s(track, grip)
         for k, s0 in enumerate(starts):
-            drive = run_test_episode(agent, env, track, s0, seed=seed + k, record_trace=False)
+            drive = run_test_episode(agent, env, track, s0, seed=drive_seed(run_seed, k),
+                                     record_trace=False)
             tests.append(tests_row(drive, episode, env_steps, checkpoint, limit))
             laps.extend(laps_rows(drive, episode))
     return tests, laps

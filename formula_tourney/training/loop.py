@@ -45,6 +45,7 @@ from formula_tourney.training.collect import SingleCarCollector, VectorCollector
 from formula_tourney.training.demos import behaviour_clone, collect_demonstrations
 from formula_tourney.training.envs import RunEnvs
 from formula_tourney.training.evaluate import (
+    drive_seed,
     laps_rows,
     other_grip_tests,
     run_test_episode,
@@ -181,7 +182,7 @@ def train(
             env = test_envs.get(name) or test_envs.setdefault(name, envs.make(name, test=True))
             starts = start_positions(envs.tracks[name].length_m, schedule.test_starts)
             drives = [
-                run_test_episode(agent, env, name, s0, seed=spec.seed * 1000 + k)
+                run_test_episode(agent, env, name, s0, seed=drive_seed(spec.seed, k))
                 for k, s0 in enumerate(starts)
             ]
             for drive in drives:
@@ -190,7 +191,7 @@ def train(
                 lap_table.extend(laps_rows(drive, episode))
             grip_tests, grip_laps = other_grip_tests(  # schedule.test_grip_scales; tables only
                 agent, envs, name, test_envs, episode=episode, env_steps=env_steps,
-                checkpoint=ckpt_rel, seed=spec.seed * 1000)
+                checkpoint=ckpt_rel, run_seed=spec.seed)
             grip_test_table.extend(grip_tests)
             lap_table.extend(grip_laps)
             # the model's clean lap, as every table and promotion counts it (results.metrics)

@@ -5,8 +5,13 @@ report's :class:`~formula_tourney.report.paper_tables.Context` (the jobs of the 
 run specs), turns every run into one score with the report's own metrics (``results.metrics``
 through ``Context.runs``: a run's best clean lap on a track; the share of its unseen test tracks
 it lapped cleanly; the highest moving average of its training reward, smoothed like the
-figures), and hands the scores to ``report.claims.evidence``. B never holds a run of A. A claim
-with ``split_b`` or ``per_track`` is several comparisons with one overall verdict.
+figures), and hands the scores to ``report.claims.evidence``. B never holds a run of A.
+
+Like is compared with like: each side is split into entrants (``report.claims.entrants``: runs
+alike in variant, line, train track and setup, less what the claim's ``pool`` names), and each
+entrant of A is compared with each entrant of B of the same setup. A claim is so several
+comparisons (more again with ``split_b`` or ``per_track``) with one overall verdict: it holds
+only if every comparison supports it.
 
 A run entered again in another part with the same seed and training settings (only its tests
 differ) trains the same agent step for step: it is one sample, not two, so each side keeps the
@@ -28,11 +33,14 @@ import pandas as pd
 
 from formula_tourney.claims.schema import Claim, Group
 from formula_tourney.report.claims import evidence
+from formula_tourney.report.claims.entrants import Entrant, entrants, first_train_track
 from formula_tourney.report.claims.evidence import ClaimStats
 from formula_tourney.report.paper_tables import Context, bot_result
 from formula_tourney.report.plots import moving_average
 from formula_tourney.results.identity import training_digest
 
+PAPER_PRESET = "paper"
+"""The preset of a run spec that names none (``RunSpec.preset``'s default)."""
 REPEATED = ("run(s) repeating another run's training (same seed and settings, other tests) "
             "counted once")
 
@@ -95,10 +103,20 @@ def _settings_of(ctx: Context, job_id: str) -> dict[str, Any]:
     return {**(spec.get("env") or {}), **(spec.get("agent") or {})}
 
 
-def first_train_track(job: pd.Series) -> str:
-    """Where a run's lap times count (``RunSpec.key_track``: its first train track)."""
-    tracks = job["train_tracks"]
-    return str(tracks[0]) if len(tracks) else ""
+def preset_of(ctx: Context, job_id: str) -> str:
+    """The preset a run started from ("" for a job that wrote no run spec yet)."""
+    spec = ctx.data.configs.get(job_id)
+    return str(spec.get("preset") or PAPER_PRESET) if spec else ""
+
+
+def _labels_match(labels: list[str], patterns: list[str] | None) -> bool:
+    """Each pattern matches one of the run's beyond-paper labels; [] wants none at all."""
+    if patterns is None:
+        return True
+    if not patterns:
+        return not labels
+    return all(any(fnmatch.fnmatchcase(label.lower(), p.lower()) for label in labels)
+               for p in patterns)
 
 
 def select_jobs(ctx: Context, group: Group) -> pd.DataFrame:
@@ -108,11 +126,14 @@ def select_jobs(ctx: Context, group: Group) -> pd.DataFrame:
         return jobs
     keep = []
     for _, job in jobs.iterrows():
-        settings = _settings_of(ctx, str(job["job_id"])) if group.settings else {}
+        job_id = str(job["job_id"])
+        settings = _settings_of(ctx, job_id) if group.settings else {}
         ok = (_names_match(job["part"], group.part)
               and _names_match(job["entrant"], group.entrant)
               and _names_match(job["variant"], group.variant)
               and _names_match(job["family"], group.family)
+              and (group.preset is None or _names_match(preset_of(ctx, job_id), group.preset))
+              and _labels_match(ctx.data.beyond_paper.get(job_id) or [], group.beyond_paper)
               and (group.reference is None or str(job["reference"]) in group.reference)
               and (group.lac is None or bool(job["lac"]) == group.lac)
               and _names_match(first_train_track(job), group.train_track)
@@ -206,6 +227,16 @@ def bot_score(ctx: Context, group: Group, track: str) -> float:
     return -float(res["bLT"]) if res["status"] == "ok" else -math.inf
 
 
+def bot_name(ctx: Context, group: Group, track: str | None) -> str:
+    """The bot side in a comparison's label, with the line whose lap it scored where the
+    claim left the line open (its best line: ``follower bot on mincurv``)."""
+    name = group.describe()
+    if group.bot_reference is not None or group.label or track is None:
+        return name
+    res = bot_result(ctx.data.baselines, str(group.bot), None, track)
+    return f"{name} on {res['reference']}" if res["status"] == "ok" else name
+
+
 def scores(ctx: Context, claim: Claim, jobs: pd.DataFrame, track: str | None
            ) -> tuple[list[str], list[float]]:
     """(job ids, scores) of the runs in ``jobs`` that have a value for this claim."""
@@ -240,8 +271,6 @@ def _side(ctx: Context, claim: Claim, group: Group, jobs: pd.DataFrame | None,
 
 def _compare(ctx: Context, claim: Claim, label: str, a_jobs: pd.DataFrame | None,
              b_jobs: pd.DataFrame | None, track: str | None) -> Comparison:
-    if a_jobs is not None and b_jobs is not None:
-        a_jobs, b_jobs = paired(a_jobs, b_jobs, list(claim.pair_on))
     notes = []
     taken: set[str] = set()  # after pairing: a repeat in an unpaired part must not win
     a_ids, a_vals, a_fixed = _side(ctx, claim, claim.a, a_jobs, track)
@@ -262,6 +291,75 @@ def _compare(ctx: Context, claim: Claim, label: str, a_jobs: pd.DataFrame | None
     return Comparison(label, track, a_ids, b_ids, a_vals, b_vals, st, "; ".join(notes))
 
 
+def _split(ctx: Context, claim: Claim, group: Group, jobs: pd.DataFrame | None
+           ) -> list[Entrant | None]:
+    """A side as entrants (``report.claims.entrants``, less what the claim pools); a bot side
+    is one fixed value, [None]."""
+    if jobs is None:
+        return [None]
+    return entrants(ctx, jobs, claim.pool, pooled_name=group.describe())
+
+
+def _entrant_comparisons(ctx: Context, claim: Claim, base: str, a_jobs: pd.DataFrame | None,
+                         b_jobs: pd.DataFrame | None, track: str | None,
+                         notes: list[str]) -> list[Comparison]:
+    """One comparison per entrant of A and entrant of B that are alike: the same setup unless
+    the claim pools it, and runs sharing the ``pair_on`` values. ``base`` names the slice (a
+    track, a family of B) where the entrants' labels do not. A side without runs is one
+    comparison saying so; entrants that are never alike are a note."""
+    a_ents = _split(ctx, claim, claim.a, a_jobs)
+    b_ents = _split(ctx, claim, claim.b, b_jobs)
+    if not a_ents or not b_ents:
+        return [_compare(ctx, claim, base, a_jobs, b_jobs, track)]
+    out = []
+    for ent_a in a_ents:
+        for ent_b in b_ents:
+            if ent_a is not None and ent_b is not None and not ent_a.same_setup(ent_b):
+                continue
+            sub_a = None if ent_a is None else ent_a.jobs
+            sub_b = None if ent_b is None else ent_b.jobs
+            if claim.pair_on and sub_a is not None and sub_b is not None:
+                sub_a, sub_b = paired(sub_a, sub_b, list(claim.pair_on))
+                if sub_a.empty or sub_b.empty:
+                    continue
+            pair = (f"{bot_name(ctx, claim.a, track) if ent_a is None else ent_a.label} vs "
+                    f"{bot_name(ctx, claim.b, track) if ent_b is None else ent_b.label}")
+            out.append(_compare(ctx, claim, f"{base}: {pair}" if base else pair, sub_a, sub_b,
+                                track))
+    if not out:
+        alike = "the same setup" + (f" and {'/'.join(claim.pair_on)}" if claim.pair_on else "")
+        notes.append((f"{base}: " if base else "") + f"no entrant of A has one of B with {alike} "
+                     "to compare with (a claim's pool names what may differ)")
+    return out
+
+
+def _slices(claim: Claim, a_all: pd.DataFrame | None, b_all: pd.DataFrame | None,
+            fixed_track: str | None
+            ) -> list[tuple[str, pd.DataFrame | None, pd.DataFrame | None, str | None]]:
+    """(label, A's runs, B's runs, track) of each part of a claim: one per train track with
+    ``per_track``, one per family/variant/entrant of B with ``split_b``, else the whole claim.
+    The label is kept only where the entrants' own labels do not say it."""
+    if claim.per_track:
+        base = a_all if a_all is not None else b_all
+        tracks = list(dict.fromkeys(first_train_track(j) for _, j in base.iterrows())) \
+            if base is not None else []
+        named = "train_track" in claim.pool or a_all is None
+        out = []
+        for track in tracks:
+            sub_a = a_all.loc[[first_train_track(j) == track for _, j in a_all.iterrows()]] \
+                if a_all is not None else None
+            sub_b = b_all
+            if a_all is None and b_all is not None:
+                sub_b = b_all.loc[[first_train_track(j) == track for _, j in b_all.iterrows()]]
+            out.append((f"on {track}" if named else "", sub_a, sub_b, track))
+        return out
+    if claim.split_b != "none" and b_all is not None:
+        named = "variant" in claim.pool
+        return [(f"vs {claim.split_b} {value}" if named else "", a_all, sub_b, fixed_track)
+                for value, sub_b in b_all.groupby(claim.split_b, sort=False)]
+    return [("", a_all, b_all, fixed_track)]
+
+
 def evaluate(ctx: Context, claim: Claim) -> ClaimResult:
     """Every comparison of one claim and its overall verdict; a claim whose runs do not exist
     says so in its notes (and is 'no data')."""
@@ -275,29 +373,13 @@ def evaluate(ctx: Context, claim: Claim) -> ClaimResult:
             result.notes.append(f"{name} ({group.describe()}): no run of this tournament "
                                 "matches")
     fixed_track = None if claim.track == "own" else claim.track
-    comparisons: list[Comparison] = []
-    if claim.per_track:
-        base = a_all if a_all is not None else b_all
-        tracks = list(dict.fromkeys(first_train_track(j) for _, j in base.iterrows())) \
-            if base is not None else []
-        for track in tracks:
-            sub_a = a_all.loc[[first_train_track(j) == track for _, j in a_all.iterrows()]] \
-                if a_all is not None else None
-            sub_b = b_all
-            if a_all is None and b_all is not None:
-                sub_b = b_all.loc[[first_train_track(j) == track for _, j in b_all.iterrows()]]
-            comparisons.append(_compare(ctx, claim, f"on {track}", sub_a, sub_b, track))
-    elif claim.split_b != "none" and b_all is not None:
-        for value, sub_b in b_all.groupby(claim.split_b, sort=False):
-            comparisons.append(_compare(ctx, claim, f"vs {claim.split_b} {value}", a_all,
-                                        sub_b, fixed_track))
-    else:
-        comparisons.append(_compare(ctx, claim, "", a_all, b_all, fixed_track))
+    for label, sub_a, sub_b, track in _slices(claim, a_all, b_all, fixed_track):
+        result.comparisons.extend(
+            _entrant_comparisons(ctx, claim, label, sub_a, sub_b, track, result.notes))
     if claim.kind == "faster" and fixed_track is None and (claim.a.is_bot or claim.b.is_bot) \
             and not claim.per_track:
         result.notes.append("a bot needs a track: set track or per_track")
-    result.comparisons = comparisons
-    result.verdict = evidence.overall([c.stats.verdict for c in comparisons])
+    result.verdict = evidence.overall([c.stats.verdict for c in result.comparisons])
     return result
 
 

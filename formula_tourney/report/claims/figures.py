@@ -6,7 +6,7 @@
   episode for each configuration of that side, its general model marked in red
   (``plots.plot_generalisation`` with ``paper_tables.general_model_of``: the tables' choice).
 - ``profile``: the performance profile of every run of the tournament (lap / reference limit,
-  ``report.claims.profiles``), one curve with its band per variant.
+  ``report.claims.profiles``), one curve with its band per entrant.
 
 A claim without runs draws nothing (its verdict already says "no data").
 """
@@ -14,14 +14,14 @@ A claim without runs draws nothing (its verdict already says "no data").
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from formula_tourney.report.claims import profiles
+from formula_tourney.report.claims.entrants import entrants, first_train_track
 from formula_tourney.report.claims.evaluate import ClaimResult
-from formula_tourney.report.paper_tables import Context, config_label, general_model_of
+from formula_tourney.report.paper_tables import Context, general_model_of
 from formula_tourney.report.plots import (
     _pyplot,
     plot_ablation,
@@ -34,16 +34,17 @@ from formula_tourney.report.plots import slug as _slug
 
 
 def plot_performance_profile(ratios: pd.DataFrame, title: str, out_base: Path) -> list[Path]:
-    """Fraction of runs with lap / reference limit <= tau, per group and over all runs, with
-    95 % bootstrap bands (rliable's performance profile); the legend says what the shaded
-    bands are."""
+    """Fraction of runs with lap / reference limit <= tau, per entrant, and over all runs where
+    they share one setup, with 95 % bootstrap bands (rliable's performance profile). Entrant
+    labels name their setup and are long: the legend sits below the axes, one per line."""
     plt = _pyplot()
-    fig, ax = subplots(figsize=(8, 5))
-    taus = profiles.tau_grid(ratios["ratio"].to_numpy(dtype=float))
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     groups = [(g, grp["ratio"].to_numpy(dtype=float)) for g, grp in
               ratios.groupby("group", sort=False)]
-    groups.append(("all runs", ratios["ratio"].to_numpy(dtype=float)))
+    if ratios["setup"].nunique() == 1:  # runs of two presets are never pooled
+        groups.append(("all runs", ratios["ratio"].to_numpy(dtype=float)))
+    fig, ax = subplots(figsize=(8, 4.5 + 0.3 * len(groups)))
+    taus = profiles.tau_grid(ratios["ratio"].to_numpy(dtype=float))
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for k, (name, values) in enumerate(groups):
         mid, low, high = profiles.profile_band(values, taus)
         colour = "black" if name == "all runs" else colours[k % len(colours)]
@@ -57,7 +58,8 @@ def plot_performance_profile(ratios: pd.DataFrame, title: str, out_base: Path) -
     ax.set_ylim(-0.02, 1.02)
     ax.set_title(wrap(title, 7.5, 12))
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, ncol=2)
+    ax.legend(fontsize=7, ncol=1, loc="upper left", bbox_to_anchor=(0.0, -0.14),
+              frameon=False)
     return save_figure(fig, out_base)
 
 
@@ -87,19 +89,16 @@ def _generalisation_figures(ctx: Context, res: ClaimResult,
         if not ids:
             continue
         sub = jobs.loc[ids]
-        configs: dict[tuple[Any, ...], list[str]] = {}
-        for job_id, job in sub.iterrows():
-            train = job["train_tracks"][0] if len(job["train_tracks"]) else ""
-            key = (str(job["variant"]), str(job["reference"]), bool(job["lac"]), str(train))
-            configs.setdefault(key, []).append(str(job_id))
-        for (variant, reference, lac, train), job_ids in configs.items():
+        for entrant in entrants(ctx, sub):  # one figure per entrant: never two presets in one
+            job_ids = [str(j) for j in entrant.jobs["job_id"]]
             models = ctx.models.loc[ctx.models["job_id"].isin(job_ids)]
             if models.empty:
                 continue
+            train = first_train_track(entrant.jobs.iloc[0])
             tracks = list(dict.fromkeys([train, *models["track"].astype(str)]))
             rate = ctx.data.unseen_finish_rate(sub.loc[job_ids, "part"].astype(str))
             general = general_model_of(ctx, job_ids, train, tracks, rate)
-            label = f"{config_label(variant, reference, lac)} ({train})"
+            label = entrant.label
             name = f"claim-{_slug(res.claim.id)}-{side}-{_slug(label)}"
             out[name] = plot_generalisation(models, tracks, f"{res.claim.id} {side.upper()}: "
                                             f"{label}", out_dir / name, general)
@@ -119,5 +118,6 @@ def make_claim_figures(ctx: Context, results: list[ClaimResult],
     ratios = profiles.run_ratios(ctx)
     if not ratios.empty and np.isfinite(ratios["ratio"]).any():
         figures["profile"] = plot_performance_profile(
-            ratios, f"Performance profile, {ctx.data.name}: all runs", out_dir / "profile")
+            ratios, f"Performance profile, {ctx.data.name}: one curve per entrant",
+            out_dir / "profile")
     return figures

@@ -3,7 +3,9 @@ is within ``tau`` times the track's reference limit, for every ``tau``.
 
 A run's ratio is its best clean lap on its first train track (``Context.runs``, the metric of
 every table) divided by that track's reference limit (``Context.limits``, from the baseline
-drives); a run without a clean lap has ratio ``inf`` and never counts. A run repeating another's
+drives); a run without a clean lap has ratio ``inf`` and never counts. One curve is one entrant
+(``report.claims.entrants``: runs alike in variant, line, train track and setup), so runs of
+two presets or two tracks are never one curve. A run repeating another's
 training (``report.claims.training_key``: same seed and settings, other tests) is the same
 model and counts once, as in the claims. The band is a percentile bootstrap over runs, seeded
 like the report's other intervals.
@@ -17,13 +19,16 @@ import numpy as np
 import pandas as pd
 
 from formula_tourney.report import stats
+from formula_tourney.report.claims.entrants import entrant_labels
 from formula_tourney.report.claims.evaluate import training_key
 from formula_tourney.report.paper_tables import Context
 
 
-def run_ratios(ctx: Context, by: str = "variant") -> pd.DataFrame:
-    """One row per run with a reference limit on its first train track: job_id, group (the
-    job's ``by`` column), track, best lap and ratio (inf without a clean lap)."""
+def run_ratios(ctx: Context) -> pd.DataFrame:
+    """One row per run with a reference limit on its first train track: job_id, group (its
+    entrant's label), setup (what it adds to the paper's, "" for none), track, best lap and
+    ratio (inf without a clean lap)."""
+    groups = entrant_labels(ctx)
     rows = []
     seen: set[str] = set()
     for _, job in ctx.jobs.iterrows():
@@ -40,9 +45,11 @@ def run_ratios(ctx: Context, by: str = "variant") -> pd.DataFrame:
         if run.empty or not math.isfinite(limit) or limit <= 0:
             continue
         lap = float(run["run_best_s"].min())
-        rows.append({"job_id": str(job["job_id"]), "group": str(job[by]), "track": track,
+        job_id = str(job["job_id"])
+        rows.append({"job_id": job_id, "group": groups[job_id],
+                     "setup": ", ".join(ctx.data.beyond_paper.get(job_id) or []), "track": track,
                      "lap_s": lap, "ratio": lap / limit if math.isfinite(lap) else math.inf})
-    return pd.DataFrame(rows, columns=["job_id", "group", "track", "lap_s", "ratio"])
+    return pd.DataFrame(rows, columns=["job_id", "group", "setup", "track", "lap_s", "ratio"])
 
 
 def profile(ratios: np.ndarray, taus: np.ndarray) -> np.ndarray:
