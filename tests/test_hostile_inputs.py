@@ -129,3 +129,186 @@ def test_bad_preset_in_defaults_is_reported_at_defaults(
     code, _, err = dry_run(capsys, path, tmp_path / "res")
     line = one_line_error(code, err, f"{path}:11:", "defaults.preset", "no-such-preset")
     assert "parts" not in line
+
+
+# ------------------------------------------------------------------ track files of a tournament
+
+OPEN_TRACK = """\
+name = "open"
+width_m = 12
+
+[[segment]]
+type = "straight"
+length_m = 300.0
+
+[[segment]]
+type = "arc"
+radius_m = 100
+angle_deg = 90
+"""
+OVAL = Path(__file__).resolve().parents[1] / "formula_tourney" / "sim" / "tracks" / "oval.toml"
+
+
+@pytest.mark.parametrize("key,track_text,words", [
+    ("train_tracks", OPEN_TRACK, ("does not close",)),
+    ("test_tracks", OVAL.read_text().replace("length_m = 150.0000", "length_m = nan", 1),
+     ("length_m", "finite")),
+], ids=["train-track-does-not-close", "test-track-nan-length"])
+def test_track_file_is_validated_not_only_found(
+    key: str, track_text: str, words: tuple[str, ...], tmp_path: Path,
+    capsys: pytest.CaptureFixture,
+) -> None:
+    (tmp_path / "bad.toml").write_text(track_text, encoding="utf-8")
+    text = TINY.format(entrants='["WIN1"]', p2="")
+    if key == "train_tracks":
+        text = text.replace('train_tracks = ["oval"]', 'train_tracks = ["bad.toml"]')
+    else:
+        text = text.replace('train_tracks = ["oval"]',
+                            'train_tracks = ["oval"]\ntest_tracks = ["oval", "bad.toml"]')
+    path = tournament(tmp_path, text)
+    results = tmp_path / "res"
+    code, _, err = dry_run(capsys, path, results)
+    one_line_error(code, err, f"{path}:", f"parts[0].{key}", "bad.toml", *words)
+    assert not results.exists()
+
+
+def test_tracks_sharing_a_trace_name_are_refused(tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture) -> None:
+    """``tr a.toml`` and ``tr_a.toml`` both become the trace ``..._tr_a.toml``: one test drive
+    and one baseline row would be dropped."""
+    for name in ("tr a.toml", "tr_a.toml"):
+        (tmp_path / name).write_text(OVAL.read_text(), encoding="utf-8")
+    text = TINY.format(entrants='["WIN1"]', p2="").replace(
+        'train_tracks = ["oval"]',
+        'train_tracks = ["oval"]\ntest_tracks = ["tr a.toml", "tr_a.toml"]\n'
+        'baselines = [{ bot = "follower", reference = "centre" }]')
+    path = tournament(tmp_path, text)
+    results = tmp_path / "res"
+    code, _, err = dry_run(capsys, path, results)
+    one_line_error(code, err, f"{path}:23:", "parts[0].test_tracks", "tr a.toml", "tr_a.toml",
+                   "rename")
+    assert not results.exists()
+
+
+# ------------------------------------------------------------------ checkpoints and output paths
+
+
+@pytest.fixture(scope="module")
+def job(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A tiny trained job folder (seconds): its checkpoints are tampered with below."""
+    out = tmp_path_factory.mktemp("job") / "run"
+    main(["train", "--out", str(out), "--variant", "WIN1", "--track", "oval", "--episodes", "1",
+          "--max-steps", "20", "--test-every", "1", "--test-starts", "1",
+          "--test-max-steps", "20", "--device", "cpu", "--set", "hidden=[16, 16]",
+          "--set", "batch_size=8", "--set", "learning_starts=8", "--json"])
+    assert (out / "checkpoints" / "last.pt").is_file()
+    return out
+
+
+class Foreign:
+    """Any class: a pickle of it is code a weights-only load refuses to run."""
+
+
+def _tamper(state: dict, case: str) -> None:
+    import torch
+
+    if case == "extra-list":
+        state["extra"] = [1, 2]
+    elif case == "extra-string":
+        state["extra"] = "episode 3"
+    elif case == "actor-nan":
+        for tensor in state["actor"].values():
+            tensor.fill_(float("nan"))
+    elif case == "obs-dim-huge":
+        state["obs_dim"] = 10**13
+    elif case == "foreign-object":
+        state["extra"] = {"note": Foreign()}
+    else:
+        raise AssertionError(case)
+    assert torch is not None
+
+
+CHECKPOINT_WORDS = {
+    "extra-list": ("extra", "list"),
+    "extra-string": ("extra", "str"),
+    "actor-nan": ("actor", "not finite"),
+    "obs-dim-huge": ("bad sizes", "10000000000000"),
+    "foreign-object": ("not a formula-tourney checkpoint",),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CHECKPOINT_WORDS))
+def test_bad_checkpoint_is_one_line(case: str, job: Path, tmp_path: Path,
+                                    capsys: pytest.CaptureFixture) -> None:
+    import shutil
+
+    import torch
+
+    folder = tmp_path / "run"
+    shutil.copytree(job, folder)
+    path = folder / "checkpoints" / "last.pt"
+    state = torch.load(path, weights_only=True)
+    _tamper(state, case)
+    torch.save(state, path)
+    code, _, err = cli(capsys, "eval", str(path), "--starts", "1", "--max-steps", "10")
+    line = one_line_error(code, err, str(path), *CHECKPOINT_WORDS[case])
+    assert "weights_only" not in line
+
+
+@pytest.fixture
+def a_file(tmp_path: Path) -> Path:
+    path = tmp_path / "plain-file"
+    path.write_text("not a folder\n", encoding="utf-8")
+    return path
+
+
+def test_run_results_under_a_file(a_file: Path, tmp_path: Path,
+                                  capsys: pytest.CaptureFixture) -> None:
+    path = tiny(tmp_path)
+    code, _, err = cli(capsys, "run", str(path), "--results", str(a_file / "res"))
+    one_line_error(code, err, "--results", str(a_file), "is a file")
+
+
+def test_train_out_under_a_file(a_file: Path, capsys: pytest.CaptureFixture) -> None:
+    code, _, err = cli(capsys, "train", "--out", str(a_file / "run"), "--variant", "WIN1",
+                       "--episodes", "1", "--max-steps", "5", "--test-starts", "1",
+                       "--test-max-steps", "5")
+    one_line_error(code, err, "--out", str(a_file), "is a file")
+
+
+def test_tracks_show_plot_under_a_file(a_file: Path, capsys: pytest.CaptureFixture) -> None:
+    code, _, err = cli(capsys, "tracks", "show", "oval", "--plot", str(a_file / "oval.png"))
+    one_line_error(code, err, "--plot", str(a_file), "is a file")
+
+
+def test_replay_gif_under_a_file_before_driving(
+    job: Path, a_file: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from formula_tourney.training import replay
+
+    def no_drive(*args: object, **kwargs: object) -> None:
+        raise AssertionError("drove before checking --gif")
+
+    monkeypatch.setattr(replay, "replay", no_drive)
+    code, _, err = cli(capsys, "replay", str(job / "checkpoints" / "last.pt"), "--track", "oval",
+                       "--gif", str(a_file / "lap.gif"))
+    one_line_error(code, err, "--gif", str(a_file), "is a file")
+
+
+def test_report_out_under_a_file(job: Path, a_file: Path, tmp_path: Path,
+                                 capsys: pytest.CaptureFixture) -> None:
+    from report_fixtures import build_tournament
+
+    build_tournament(tmp_path / "results")
+    code, _, err = cli(capsys, "report", "--tournament", "fixture-cup", "--results",
+                       str(tmp_path / "results"), "--out", str(a_file / "report"),
+                       "--no-figures", "--no-claims")
+    one_line_error(code, err, "--out", str(a_file), "is a file")
+
+
+@pytest.mark.parametrize("under", [True, False], ids=["parent-is-a-file", "out-is-a-file"])
+def test_race_out_under_a_file(under: bool, a_file: Path, capsys: pytest.CaptureFixture) -> None:
+    out = a_file / "races" if under else a_file
+    code, _, err = cli(capsys, "race", "--bots", "follower", "--track", "oval", "--laps", "1",
+                       "--out", str(out))
+    one_line_error(code, err, "--out", str(a_file), "is a file")

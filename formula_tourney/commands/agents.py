@@ -19,6 +19,7 @@ from formula_tourney.commands.model_options import (
 from formula_tourney.commands.output import emit, message
 from formula_tourney.errors import UserInputError
 from formula_tourney.lines.kinds import REFERENCE_KINDS
+from formula_tourney.safeio import check_output_path
 from formula_tourney.training.presets import PRESETS
 from formula_tourney.training.run_spec import DemoSettings, RunSpec, Schedule, build_run_spec
 
@@ -105,6 +106,7 @@ def register(app: typer.Typer) -> None:
         from formula_tourney.results.folder import JobFolder
         from formula_tourney.training.loop import train
 
+        check_output_path(out, "--out", folder=True)
         demos = chosen_values(ctx, TRAIN_OPTIONS, values, DemoSettings)
         spec = build_run_spec(
             **chosen_values(ctx, TRAIN_OPTIONS, values, RunSpec),

@@ -15,6 +15,7 @@ import typer
 
 from formula_tourney.commands.output import emit, message
 from formula_tourney.errors import UserInputError
+from formula_tourney.safeio import check_output_path
 
 
 def _fmt(x: float | None, digits: int = 3) -> str:
@@ -158,6 +159,8 @@ def register(app: typer.Typer) -> None:
         if races > 1 and (gif or mp4):
             raise UserInputError("--gif/--mp4 render one race: drop --races")
         points_table = _points(points)
+        if out is not None:
+            check_output_path(out, "--out", folder=True)
         if out is not None and (out.exists() and any(out.iterdir()) or not out.parent.is_dir()):
             raise UserInputError(f"--out {out}: must be a new or empty folder in an existing one")
         _check_out(gif, ".gif")

@@ -14,6 +14,7 @@ from rich.markup import escape
 
 from formula_tourney.commands.output import emit, message
 from formula_tourney.errors import UserInputError
+from formula_tourney.safeio import check_output_path
 from formula_tourney.sim.catalog import list_tracks, load_track, user_tracks_dir
 from formula_tourney.sim.generate import generate_spec
 from formula_tourney.sim.plot import check_plot_path, plot_tracks
@@ -144,7 +145,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Length, width, minimum radius, closure error and segments of a track."""
         if plot is not None:
-            check_plot_path(plot)
+            check_output_path(check_plot_path(plot), "--plot")
         track = load_track(name)
         summary = track_summary(track)
         if plot is not None:
@@ -201,7 +202,7 @@ def register(app: typer.Typer) -> None:
         if name is not None and not save:
             raise UserInputError("--name only applies with --save")
         if plot is not None:
-            check_plot_path(plot)
+            check_output_path(check_plot_path(plot), "--plot")
         target = (user_track_target(name or f"gen-{seed}", "--save", overwrite=force,
                                     generated_seed=seed) if save else None)
         spec, track = generate_spec(seed, name=name)

@@ -29,6 +29,7 @@ import pandas as pd
 from formula_tourney.results.folder import CorruptResultError, JobFolder
 from formula_tourney.results.index import decode_job, is_legacy, legacy_job_rows
 from formula_tourney.results.layout import INDEX_FILE, INDEX_SCHEMA, INDEX_TABLES, JOB_TABLES
+from formula_tourney.safeio import make_dirs
 
 REBUILD_HINT = "run again with --rebuild-index to move it aside and rebuild it from the job folders"
 
@@ -57,7 +58,7 @@ class Store:
     @property
     def db(self) -> sqlite3.Connection:
         if self._db is None:
-            self.root.mkdir(parents=True, exist_ok=True)
+            make_dirs(self.root, "results folder")
             db = sqlite3.connect(self.index_path, timeout=30, isolation_level=None)
             db.row_factory = sqlite3.Row
             try:

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 from formula_tourney.results.index import JOB_COLUMNS
+from formula_tourney.safeio import make_dirs
 from formula_tourney.tourney.jobs import Job
 from formula_tourney.tourney.plan import PlannedPart, Planner
 from formula_tourney.tourney.store import Store
@@ -116,7 +117,7 @@ def fresh_dir(out_dir: Path) -> None:
     """An unfinished folder is a crashed attempt: start it again from empty."""
     if out_dir.exists():
         shutil.rmtree(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    make_dirs(out_dir, "job folder")
 
 
 def number(value: Any) -> float | None:

@@ -21,6 +21,7 @@ from optuna.storages import JournalStorage
 from optuna.storages.journal import JournalFileBackend
 from optuna.trial import TrialState
 
+from formula_tourney.safeio import make_dirs
 from formula_tourney.tourney.tune.spec import SearchParam, TuneSpec
 
 HEARTBEAT_INTERVAL_S = 30
@@ -63,7 +64,7 @@ def decode_params(params: dict[str, Any], search: dict[str, SearchParam]) -> dic
 
 def storage_for(url: str | None, journal: Path, max_retry: int) -> Any:
     if url is None:
-        journal.parent.mkdir(parents=True, exist_ok=True)
+        make_dirs(journal.parent, "study folder")
         return JournalStorage(JournalFileBackend(str(journal)))
     if url.startswith(("sqlite:", "postgresql", "mysql")):
         callback_cls = getattr(optuna.storages, "RetryHeartbeatStaleTrialCallback", None) or (
