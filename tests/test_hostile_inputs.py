@@ -312,3 +312,48 @@ def test_race_out_under_a_file(under: bool, a_file: Path, capsys: pytest.Capture
     code, _, err = cli(capsys, "race", "--bots", "follower", "--track", "oval", "--laps", "1",
                        "--out", str(out))
     one_line_error(code, err, "--out", str(a_file), "is a file")
+
+
+# ------------------------------------------------------------------ user text is printed as text
+
+
+@pytest.mark.parametrize("description", ["[/bogus] [bold]x", "red \x1b[31mALERT\x1b[0m \x1b[2J"],
+                         ids=["rich-markup", "ansi-escapes"])
+def test_description_is_printed_as_text(description: str, tmp_path: Path,
+                                        capsys: pytest.CaptureFixture) -> None:
+    toml_text = description.replace("\x1b", "\\u001b")  # TOML's escape for ESC
+    text = TINY.format(entrants='["WIN1"]', p2="").replace(
+        'name = "tiny"\n', f'name = "tiny"\ndescription = "{toml_text}"\n')
+    path = tournament(tmp_path, text)
+    results = tmp_path / "res"
+    code, out, err = dry_run(capsys, path, results)
+    assert code == 0, err
+    assert "\x1b" not in out
+    assert description.replace("\x1b", "\\x1b") in out
+    assert not results.exists()
+
+
+def test_track_path_with_markup_is_printed_as_text(tmp_path: Path,
+                                                   capsys: pytest.CaptureFixture) -> None:
+    (tmp_path / "[").mkdir()
+    (tmp_path / "[" / "x].toml").write_text(OVAL.read_text(), encoding="utf-8")
+    (tmp_path / "[bold]b.toml").write_text(OVAL.read_text(), encoding="utf-8")
+    text = TINY.format(entrants='["WIN1"]', p2="").replace(
+        'train_tracks = ["oval"]', 'train_tracks = ["[/x].toml", "[bold]b.toml"]')
+    path = tournament(tmp_path, text)
+    code, out, err = dry_run(capsys, path, tmp_path / "res")
+    assert code == 0, err
+    assert "train [/x].toml, [bold]b.toml; test [/x].toml, [bold]b.toml" in out
+
+
+def test_tracks_list_shows_user_file_names_as_text(tmp_path: Path, capsys: pytest.CaptureFixture,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    from formula_tourney.sim.catalog import DATA_DIR_ENV
+
+    monkeypatch.setenv(DATA_DIR_ENV, str(tmp_path))
+    (tmp_path / "tracks").mkdir()
+    (tmp_path / "tracks" / "[x].toml").write_text(OVAL.read_text(), encoding="utf-8")
+    (tmp_path / "tracks" / "[red]y.toml").write_text(OVAL.read_text(), encoding="utf-8")
+    code, out, err = cli(capsys, "tracks", "list")
+    assert code == 0, err
+    assert "[x]" in out and "[red]y" in out

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import typer
 
-from formula_tourney.commands.output import emit, message
+from formula_tourney.commands.output import emit, message, styled
 from formula_tourney.errors import UserInputError
 from formula_tourney.safeio import check_output_path
 
@@ -256,7 +256,7 @@ def register(app: typer.Typer) -> None:
 
         def render(console) -> None:
             for name, v in tables.items():
-                console.print(f"[bold]{name}[/bold]")
+                console.print(styled((name, "bold")))
                 _render_series(v["standings"], v["races"])(console)
         emit(out, as_json, render)
         raise typer.Exit(failures_exit(result))

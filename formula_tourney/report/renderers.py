@@ -19,8 +19,9 @@ from formula_tourney.safeio import atomic_write_text
 def render_rich(table: ReportTable, console: Any) -> None:
     """One rich table per column group: the paper's wide layout does not fit a terminal."""
     from rich.table import Table
+    from rich.text import Text
 
-    console.print(f"[bold]{table.title}[/bold]")
+    console.print(Text(table.title, style="bold"))
     if table.empty:
         console.print("  (empty) " + "; ".join(table.notes))
         return
@@ -40,7 +41,7 @@ def render_rich(table: ReportTable, console: Any) -> None:
             cells = []
             for m in metrics:
                 text = row["text"].get((group, m), DASH)
-                cells.append(f"[bold green]{text}[/]" if (i, group, m) in best else text)
+                cells.append(Text(text, style="bold green") if (i, group, m) in best else text)
             nxt = table.rows[shown[k + 1]] if k + 1 < len(shown) else None
             end = nxt is not None and (nxt["kind"] != row["kind"] or nxt["family"] != row["family"])
             rt.add_row(row["label"], *cells, end_section=end)
