@@ -4,6 +4,7 @@ text, never read as rich markup or terminal escape codes."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -357,3 +358,57 @@ def test_tracks_list_shows_user_file_names_as_text(tmp_path: Path, capsys: pytes
     code, out, err = cli(capsys, "tracks", "list")
     assert code == 0, err
     assert "[x]" in out and "[red]y" in out
+
+
+# ------------------------------------------------------------------ resume checks the files
+
+
+def test_resume_runs_again_a_done_job_whose_files_are_lost(tmp_path: Path,
+                                                           capsys: pytest.CaptureFixture) -> None:
+    """A finished job whose folder is deleted, and one whose tests.parquet is cut in half, were
+    still counted as done: the resume ran nothing and said nothing."""
+    import shutil
+
+    import pandas as pd
+
+    path = tiny(tmp_path, '["WIN1", "MS2"]')
+    results = tmp_path / "res"
+    code, _, err = cli(capsys, "run", str(path), "--results", str(results), "--workers", "1")
+    assert code == 0, err
+    root = results / "tiny" / "p1"
+    gone, cut = root / "WIN1-MOT" / "seed-0", root / "MS2-MOT" / "seed-0"
+    before = {job: pd.read_parquet(job / "tests.parquet") for job in (gone, cut)}
+    shutil.rmtree(gone)
+    data = (cut / "tests.parquet").read_bytes()
+    (cut / "tests.parquet").write_bytes(data[: len(data) // 2])
+
+    code, out, err = cli(capsys, "run", str(path), "--results", str(results), "--workers", "1",
+                         "--json")
+    assert code == 0, err
+    result = json.loads(out)
+    assert result["this_run"]["lost"] == 2 and result["this_run"]["done"] == 2
+    reasons = {x["job_id"]: x["reason"] for x in result["lost"]}
+    assert "is missing" in reasons["p1/WIN1-MOT/seed-0"]
+    assert "tests.parquet" in reasons["p1/MS2-MOT/seed-0"]
+    for job, table in before.items():  # the same seed: the same tests (but the CPU clock)
+        pd.testing.assert_frame_equal(pd.read_parquet(job / "tests.parquet").drop(
+            columns="cpu_s"), table.drop(columns="cpu_s"))
+
+
+# ------------------------------------------------------------------ tune storage
+
+TUNE_FILE = Path(__file__).resolve().parents[1] / "tournaments" / "tune.toml"
+
+
+@pytest.mark.parametrize("extra,words", [
+    (("--storage", "sqlite:////nonexistent/dir/x.db"), ("--storage", "cannot open")),
+    (("--storage", "garbage://x"), ("--storage", "garbage", "sqlite://")),
+    (("--resume",), ("--resume", "no study")),
+], ids=["sqlite-folder-missing", "unknown-scheme", "resume-without-study"])
+def test_tune_storage_errors_leave_nothing(extra: tuple[str, ...], words: tuple[str, ...],
+                                           tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    results = tmp_path / "res"
+    code, _, err = cli(capsys, "tune", str(TUNE_FILE), "--variant", "WIN1", "--trials", "1",
+                       "--results", str(results), *extra)
+    one_line_error(code, err, *words)
+    assert not results.exists()  # no .lock, no empty journal

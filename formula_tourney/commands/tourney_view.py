@@ -101,6 +101,10 @@ def render_results(console: Console, result: dict[str, Any]) -> None:
                           "yes" if base["finished"] else base["status"],
                           f"limit {_fmt(base['reference_limit_s'])}")
         console.print(table)
+    for lost in result.get("lost") or []:
+        console.print(styled(("lost", "yellow"),
+                             f" {lost['job_id']}: done in the index, but {lost['reason']}; "
+                             f"{lost['action']}"))
     for fail in result["failures"]:
         console.print(styled(("failed", "red"), f" {fail['job_id']}: {fail['reason']}"))
     if "wall_s" in result:
@@ -110,6 +114,7 @@ def render_results(console: Console, result: dict[str, Any]) -> None:
             f"{run['skipped']} already done"
             + (f", {run['recovered']} recovered from their folders" if run.get("recovered") else "")
             + (f", {run['reopened']} parts re-opened" if run.get("reopened") else "")
+            + (f", {run['lost']} found lost (listed above)" if run.get("lost") else "")
             + f", in {result['wall_s']:.1f} s on "
             f"{result['workers']} {result['executor']} workers"
         )
