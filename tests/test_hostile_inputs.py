@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from tourney_fixtures import TINY
 
@@ -412,3 +413,44 @@ def test_tune_storage_errors_leave_nothing(extra: tuple[str, ...], words: tuple[
                        "--results", str(results), *extra)
     one_line_error(code, err, *words)
     assert not results.exists()  # no .lock, no empty journal
+
+
+# ------------------------------------------------------------------ the env's actions and seeds
+
+BAD_ACTIONS = {
+    "strings": np.array(["0.0", "0.5", "0.0"]),
+    "complex": np.array([0.0, 0.5 + 1j, 0.0]),
+    "bools": np.array([False, True, False]),
+    "string-list": ["0.0", "0.5", "0.0"],
+}
+
+
+@pytest.mark.parametrize("vector", [False, True], ids=["single", "vector"])
+@pytest.mark.parametrize("case", sorted(BAD_ACTIONS))
+def test_env_refuses_actions_that_are_not_real_numbers(case: str, vector: bool) -> None:
+    from simtracks import stadium
+
+    from formula_tourney.sim.env import FormulaRacingEnv, FormulaRacingVectorEnv, InvalidActionError
+
+    if vector:
+        env = FormulaRacingVectorEnv(num_envs=2, config={"track": stadium()})
+        action = np.stack([np.asarray(BAD_ACTIONS[case])] * 2)
+    else:
+        env = FormulaRacingEnv(config={"track": stadium()})
+        action = BAD_ACTIONS[case]
+    env.reset(seed=0)
+    with pytest.raises(InvalidActionError, match="real numbers"):
+        env.step(action)
+
+
+def test_vector_reset_uses_every_seed_or_refuses() -> None:
+    from simtracks import stadium
+
+    from formula_tourney.sim.env import FormulaRacingVectorEnv
+
+    env = FormulaRacingVectorEnv(num_envs=2, config={"track": stadium(), "random_start": True})
+    with pytest.raises(ValueError, match="one generator"):
+        env.reset(seed=[1, 2])
+    same, _ = env.reset(seed=[7, 7])
+    one, _ = env.reset(seed=7)
+    np.testing.assert_array_equal(same, one)
