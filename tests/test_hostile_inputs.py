@@ -454,3 +454,51 @@ def test_vector_reset_uses_every_seed_or_refuses() -> None:
     same, _ = env.reset(seed=[7, 7])
     one, _ = env.reset(seed=7)
     np.testing.assert_array_equal(same, one)
+
+
+def test_race_negative_seed(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "races"
+    code, _, err = cli(capsys, "race", "--bots", "follower", "--track", "oval", "--laps", "1",
+                       "--seed", "-5", "--out", str(out))
+    one_line_error(code, err, "--seed", "-5")
+    assert not out.exists()
+
+
+def test_report_on_a_config_with_a_word_for_grip(tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture) -> None:
+    """A traceback (ValueError from float('wet')); now a problem naming the file, as the
+    report does for every file it cannot read."""
+    from report_fixtures import build_tournament
+
+    root = build_tournament(tmp_path / "results")
+    config = next(root.rglob("config.json"))
+    doc = json.loads(config.read_text(encoding="utf-8"))
+    doc["run_spec"].setdefault("env", {})["grip_scale"] = "wet"
+    config.write_text(json.dumps(doc), encoding="utf-8")
+    code, out, err = cli(capsys, "report", "--tournament", root.name, "--results",
+                         str(tmp_path / "results"), "--no-figures", "--no-claims", "--json")
+    assert code == 0 and "Traceback" not in err, err  # the report lists what it cannot read
+    problems = [p for p in json.loads(out)["problems"] if str(config) in p]
+    assert problems and all("grip_scale is 'wet', not a number" in p for p in problems)
+
+
+def test_a_full_disk_is_not_called_an_unreadable_index(tmp_path: Path) -> None:
+    """SQLite's "database or disk is full" was reported as "cannot read the results index ...
+    --rebuild-index", though the index was intact."""
+    from formula_tourney.errors import UserInputError
+    from formula_tourney.results.folder import CorruptResultError
+    from formula_tourney.tourney.store import Store
+
+    store = Store(tmp_path / "t")
+    store.add_part("p1", "main", 0, None)
+    pages = store.db.execute("PRAGMA page_count").fetchone()[0]
+    store.db.execute(f"PRAGMA max_page_count = {pages}")  # the disk is full from now on
+    rows = [{"job_id": f"p1/x-{i}", "kind": "train", "part": "p1", "position": 0,
+             "path": f"p1/x-{i}", "config_hash": "h" * 64, "attrs": {"note": "x" * 2000}}
+            for i in range(50)]
+    with pytest.raises(UserInputError) as err:
+        store.add_jobs(rows)
+    assert not isinstance(err.value, CorruptResultError)
+    assert "disk is full" in str(err.value) and "--rebuild-index" not in str(err.value)
+    assert "\n" not in str(err.value)
+    assert store.part("p1")["status"] == "pending"  # the index still reads

@@ -156,6 +156,8 @@ def register(app: typer.Typer) -> None:
             raise UserInputError(f"--fps: expected 1..60, got {fps}")
         if races < 1:
             raise UserInputError(f"--races: expected at least 1, got {races}")
+        if seed < 0:
+            raise UserInputError(f"--seed: expected 0 or more, got {seed}")
         if races > 1 and (gif or mp4):
             raise UserInputError("--gif/--mp4 render one race: drop --races")
         points_table = _points(points)
