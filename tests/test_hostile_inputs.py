@@ -502,3 +502,15 @@ def test_a_full_disk_is_not_called_an_unreadable_index(tmp_path: Path) -> None:
     assert "disk is full" in str(err.value) and "--rebuild-index" not in str(err.value)
     assert "\n" not in str(err.value)
     assert store.part("p1")["status"] == "pending"  # the index still reads
+
+
+def test_a_rule_across_keys_names_them(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """A model-level rule read "value: Value error, ..." (pydantic's loc of the whole model)."""
+    text = TINY.format(entrants='["WIN1"]', p2="").replace(
+        "batch_size = 16, learning_starts = 16 }\n[variants.MS2]",
+        "batch_size = 4096, buffer_size = 1000, learning_starts = 16 }\n[variants.MS2]")
+    path = tournament(tmp_path, text)
+    code, _, err = dry_run(capsys, path, tmp_path / "res")
+    line = one_line_error(code, err, f"{path}:13:", "variants.WIN1.overrides",
+                          "batch_size must not exceed buffer_size")
+    assert "value:" not in line and "Value error" not in line and "validation error" not in line

@@ -317,7 +317,14 @@ def parse_config(data: Any, source: str) -> AgentConfig:
     try:
         return AgentConfig.model_validate(data)
     except ValidationError as err:
-        problems = "; ".join(
-            f"{'.'.join(str(p) for p in e['loc']) or 'value'}: {e['msg']}" for e in err.errors()
-        )
-        raise UserInputError(f"{source}: {problems}") from None
+        raise UserInputError(f"{source}: {validation_problems(err)}") from None
+
+
+def validation_problems(err: ValidationError) -> str:
+    """pydantic's errors as ``key: problem; ...`` on one line: a rule across keys (batch_size
+    and buffer_size) names its keys in its own words, never "1 validation error for ..."."""
+    return "; ".join(
+        (f"{'.'.join(str(p) for p in e['loc'])}: " if e["loc"] else "")
+        + str(e["msg"]).removeprefix("Value error, ")
+        for e in err.errors()
+    )

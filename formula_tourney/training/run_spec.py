@@ -38,7 +38,12 @@ from pydantic import (
     model_validator,
 )
 
-from formula_tourney.agents.variants import AgentConfig, get_variant, named_settings
+from formula_tourney.agents.variants import (
+    AgentConfig,
+    get_variant,
+    named_settings,
+    validation_problems,
+)
 from formula_tourney.errors import UserInputError
 from formula_tourney.field_marks import added_in_layout, beyond_paper, marks
 from formula_tourney.lines.kinds import ReferenceKind
@@ -355,7 +360,8 @@ class RunSpec(_Frozen):
         try:
             return cls.model_validate(dict(data))
         except ValidationError as err:
-            raise UserInputError(f"{source}: not a run specification: {_problems(err)}") from None
+            raise UserInputError(
+                f"{source}: not a run specification: {validation_problems(err)}") from None
 
 
 def _setting_label(key: str, value: Any) -> str:
@@ -365,10 +371,6 @@ def _setting_label(key: str, value: Any) -> str:
     return f"{key} {value:g}"
 
 
-def _problems(err: ValidationError) -> str:
-    return "; ".join(
-        f"{'.'.join(str(p) for p in e['loc']) or 'value'}: {e['msg']}" for e in err.errors()
-    )
 
 
 _SECTIONS: dict[str, type[BaseModel]] = {
@@ -460,7 +462,7 @@ def build_run_spec(
             preset=preset,
         )  # fmt: skip
     except ValidationError as err:
-        raise UserInputError(f"{source}: {_problems(err)}") from None
+        raise UserInputError(f"{source}: {validation_problems(err)}") from None
 
 
 def _env_settings(overrides: Mapping[str, Any] | EnvSettings | None, source: str,
