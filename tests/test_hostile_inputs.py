@@ -514,3 +514,15 @@ def test_a_rule_across_keys_names_them(tmp_path: Path, capsys: pytest.CaptureFix
     line = one_line_error(code, err, f"{path}:13:", "variants.WIN1.overrides",
                           "batch_size must not exceed buffer_size")
     assert "value:" not in line and "Value error" not in line and "validation error" not in line
+
+
+@pytest.mark.parametrize("value", ["Infinity", "NaN", "-Infinity"])
+def test_train_set_a_learning_rate_that_is_not_finite(value: str, tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture) -> None:
+    """Accepted, then a DivergedError traceback and a partial job folder."""
+    out = tmp_path / "run"
+    code, _, err = cli(capsys, "train", "--out", str(out), "--variant", "WIN1", "--episodes", "1",
+                       "--max-steps", "20", "--test-starts", "1", "--test-max-steps", "20",
+                       "--set", f"critic_lr={value}")
+    one_line_error(code, err, "critic_lr", "finite")
+    assert not out.exists()
