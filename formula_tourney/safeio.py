@@ -49,10 +49,47 @@ def read_user_text(path: str | Path, what: str) -> str:
         raise UserInputError(f"{path}: cannot read {what} file ({err})") from None
 
 
+def _blocking_file(path: Path) -> Path | None:
+    """The nearest existing ancestor of ``path`` (or ``path`` itself) that is not a folder."""
+    for candidate in (path, *path.parents):
+        if candidate.exists():
+            return None if candidate.is_dir() else candidate
+    return None
+
+
+def check_output_path(path: str | Path, what: str, folder: bool = False) -> Path:
+    """Refuse an output path that cannot be written, before any work is done: one of its
+    parents is a regular file, or (``folder``) it is a file itself, or it is a folder where a
+    file is wanted. Nothing is created."""
+    path = Path(path)
+    blocker = _blocking_file(path.parent)
+    if blocker is not None:
+        raise UserInputError(f"{what} {path}: {blocker} is a file, not a folder")
+    if folder and path.exists() and not path.is_dir():
+        raise UserInputError(f"{what} {path}: is a file, not a folder")
+    if not folder and path.is_dir():
+        raise UserInputError(f"{what} {path}: is a folder, not a file name")
+    return path
+
+
+def make_dirs(path: str | Path, what: str = "folder") -> Path:
+    """``mkdir -p``: every output folder is made here, so a parent that is a regular file, a
+    full disk or a folder without write permission is one UserInputError naming the path."""
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        blocker = _blocking_file(path) or path
+        raise UserInputError(f"{what} {path}: {blocker} is a file, not a folder") from None
+    except OSError as err:
+        raise UserInputError(f"{what} {path}: cannot create the folder ({err.strerror})") from None
+    return path
+
+
 def atomic_write(path: str | Path, write: Callable[[Path], None]) -> Path:
     """Call ``write(tmp_path)`` and rename the result onto ``path`` (same folder, so atomic)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    make_dirs(path.parent)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
     tmp_path = Path(tmp)

@@ -300,7 +300,7 @@ def test_a_tournament_declares_train_and_test_grips_for_its_jobs(tmp_path) -> No
 
 
 @pytest.mark.parametrize("edit, expected", [
-    ({"grips": "[0.8, 0.8]"}, "test_grip_scales: Value error, [0.8, 0.8]: list each grip once"),
+    ({"grips": "[0.8, 0.8]"}, "test_grip_scales: [0.8, 0.8]: list each grip once"),
     ({"grips": "[2.0]"}, "grip.toml:5: defaults.test_grip_scales[0]: Input should be less than or "
      "equal to 1.5"),
     ({"env": "{ grip_scale_range = [0.9, 0.5] }"}, "grip_scale_range: lo 0.9 above hi 0.5"),

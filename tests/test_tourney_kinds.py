@@ -183,18 +183,23 @@ def test_an_index_of_the_older_layout_reads_and_resumes(finished: tuple[Path, Pa
 
 def test_a_done_job_whose_files_are_gone_goes_by_its_kind(finished: tuple[Path, Path],
                                                           tmp_path: Path) -> None:
-    """In the closed part p1 a training run (trust_index) and a baseline drive (rerun_if_open)
-    stay done without their files; the race series (reopen_part) races again."""
+    """In the closed part p1 a training run (reopen_part) runs again and re-opens p1, so the
+    baseline drive (rerun_if_open) runs again too; the race series (reopen_part) races again.
+    The run's summary lists each lost job with its reason."""
     path, res = _copy(finished, tmp_path)
     root = res / "tiny"
     (root / "p1/WIN1-MOT/seed-0/summary.json").unlink()
     shutil.rmtree(root / "p1/_baselines/follower-centre-oval")
     (root / "final/_races/race-0.json").unlink()
     result = run_tournament(path, workers=1, results_dir=res)
-    assert result["this_run"]["done"] == 1 and result["this_run"]["skipped"] == 3
+    assert result["this_run"]["done"] == 3 and result["this_run"]["skipped"] == 1
+    assert result["this_run"]["lost"] == 3
+    assert {(x["job_id"], x["action"]) for x in result["lost"]} == {
+        ("p1/WIN1-MOT/seed-0", "run again"), ("p1/_baselines/follower-centre-oval", "run again"),
+        ("final/_races", "run again")}
     rows = {r["job_id"]: r for r in _table(root / L.INDEX_FILE, "SELECT * FROM jobs")}
     assert all(r["status"] == "done" for r in rows.values())
-    assert rows["final/_races"]["attempts"] == 2 and rows["p1/WIN1-MOT/seed-0"]["attempts"] == 1
+    assert rows["final/_races"]["attempts"] == 2 and rows["p1/WIN1-MOT/seed-0"]["attempts"] == 2
     assert (root / "final/_races/race-0.json").is_file()
-    assert not (root / "p1/_baselines/follower-centre-oval").exists()
-    assert not (root / "p1/WIN1-MOT/seed-0/summary.json").exists()
+    assert (root / "p1/_baselines/follower-centre-oval/result.json").is_file()
+    assert (root / "p1/WIN1-MOT/seed-0/summary.json").is_file()

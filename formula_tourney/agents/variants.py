@@ -14,7 +14,7 @@ a description, so ``--help``, tournament files and error messages all read from 
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
@@ -23,12 +23,17 @@ from formula_tourney.errors import UserInputError
 from formula_tourney.field_marks import marks
 from formula_tourney.sim.reward import BY_NAME as REWARD_SETTINGS
 
+MAX_HIDDEN_UNITS = 16_384
+"""Widest hidden layer: a 16384 x 16384 float32 layer is 1 GiB; a wider one is a typo that
+would fail to allocate in every job (the paper's nets are 400-300)."""
+HiddenUnits = Annotated[int, Field(ge=1, le=MAX_HIDDEN_UNITS, strict=True)]
+
 
 class SharedSettings(BaseModel):
     """The settings every family's update reads (the paper's Sections "Algorithms" and
     "Extensions"); :class:`AgentConfig` adds each family's own."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     name: str = Field("WIN1", description="Variant name as registered (e.g. WIN4, PER1M).")
     family: str = Field(
@@ -97,8 +102,10 @@ class SharedSettings(BaseModel):
     actor_lr: float = Field(1e-4, gt=0.0, description="Adam learning rate of the actor.")
     critic_lr: float = Field(1e-3, gt=0.0, description="Adam learning rate of the critic.")
     batch_size: int = Field(256, ge=1, le=65536, description="Minibatch size N per update.")
-    hidden: tuple[int, int] = Field(
-        (400, 300), description="Hidden units of the actor and the MLP critic (Lillicrap 400-300)."
+    hidden: tuple[HiddenUnits, HiddenUnits] = Field(
+        (400, 300),
+        description="Hidden units of the actor and the MLP critic (Lillicrap 400-300), each "
+        f"1..{MAX_HIDDEN_UNITS}.",
     )
     critic_layer_norm: bool = Field(
         False,
@@ -190,12 +197,13 @@ class SharedSettings(BaseModel):
 
 class AgentConfig(*reversed([f.settings for f in ALGORITHMS.values()]), SharedSettings):
     """Hyperparameters of one variant: the shared settings, then each registered family's own
-    (its ``settings`` model), as flat keys."""
+    (its ``settings`` model), as flat keys. No float setting may be infinite or NaN (a learning
+    rate of inf diverges in every job): ``allow_inf_nan=False`` covers each family's too."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     @model_validator(mode="after")
     def _consistent(self) -> AgentConfig:
-        if any(h < 1 for h in self.hidden):
-            raise ValueError("hidden units must be positive")
         if self.batch_size > self.buffer_size:
             raise ValueError("batch_size must not exceed buffer_size")
         if self.algorithm not in ALGORITHMS:
@@ -334,7 +342,14 @@ def parse_config(data: Any, source: str) -> AgentConfig:
     try:
         return AgentConfig.model_validate(data)
     except ValidationError as err:
-        problems = "; ".join(
-            f"{'.'.join(str(p) for p in e['loc']) or 'value'}: {e['msg']}" for e in err.errors()
-        )
-        raise UserInputError(f"{source}: {problems}") from None
+        raise UserInputError(f"{source}: {validation_problems(err)}") from None
+
+
+def validation_problems(err: ValidationError) -> str:
+    """pydantic's errors as ``key: problem; ...`` on one line: a rule across keys (batch_size
+    and buffer_size) names its keys in its own words, never "1 validation error for ..."."""
+    return "; ".join(
+        (f"{'.'.join(str(p) for p in e['loc'])}: " if e["loc"] else "")
+        + str(e["msg"]).removeprefix("Value error, ")
+        for e in err.errors()
+    )

@@ -20,6 +20,7 @@ from formula_tourney.commands.model_options import (
 from formula_tourney.commands.output import emit, message
 from formula_tourney.errors import UserInputError
 from formula_tourney.lines.kinds import REFERENCE_KINDS
+from formula_tourney.safeio import check_output_path
 from formula_tourney.training.presets import PRESETS
 from formula_tourney.training.run_spec import DemoSettings, RunSpec, Schedule, build_run_spec
 
@@ -106,6 +107,7 @@ def register(app: typer.Typer) -> None:
         from formula_tourney.results.folder import JobFolder
         from formula_tourney.training.loop import train
 
+        check_output_path(out, "--out", folder=True)
         demos = chosen_values(ctx, TRAIN_OPTIONS, values, DemoSettings)
         spec = build_run_spec(
             **chosen_values(ctx, TRAIN_OPTIONS, values, RunSpec),
@@ -192,6 +194,8 @@ def register(app: typer.Typer) -> None:
         seed give the same laps as its row in tests.parquet; --best finds the table's."""
         from formula_tourney.training.replay import replay, replay_best
 
+        if gif is not None:
+            check_output_path(gif, "--gif")  # before the drive, not after it
         options: dict[str, Any] = {"max_steps": max_steps, "frame_every": frame_every,
                                    "device": device}
         if best:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import typer
 
-from formula_tourney.commands.output import emit, message
+from formula_tourney.commands.output import emit, message, styled
 from formula_tourney.errors import UserInputError
 from formula_tourney.safeio import atomic_write
 from formula_tourney.sim.catalog import load_track
@@ -79,8 +79,8 @@ def register(app: typer.Typer) -> None:
         data = public(report)
 
         def render(console) -> None:
-            console.print(f"[bold]{trk.name}[/bold] ({trk.length_m:.0f} m), line [bold]{line}"
-                          "[/bold]")
+            console.print(styled((trk.name, "bold"), f" ({trk.length_m:.0f} m), line ",
+                                 (line, "bold")))
             console.print(f"  QSS lap           {_fmt(data['profile_lap_s'])} s "
                           f"(reference limit {_fmt(data['reference_limit_s'])} s, gap "
                           f"{_fmt(data['gap_to_limit_pct'], 1)} %)")
@@ -143,7 +143,7 @@ def register(app: typer.Typer) -> None:
         data = public(bot_report(trk, line, laps))
 
         def render(console) -> None:
-            console.print(f"[bold]{trk.name}[/bold], {data['bot']} on the {line} line")
+            console.print(styled((trk.name, "bold"), f", {data['bot']} on the {line} line"))
             for i, (t, d) in enumerate(zip(data["laps"], data["lap_damage"], strict=False), 1):
                 console.print(f"  lap {i}: {t:.2f} s" + ("" if d == 0 else f" (damage {d:.0f})"))
             console.print(f"  best clean lap {_fmt(data['best_lap_s'])} s, damage "

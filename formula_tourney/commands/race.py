@@ -15,9 +15,10 @@ import typer
 from rich.table import Table
 from rich.text import Text
 
-from formula_tourney.commands.output import emit, message
+from formula_tourney.commands.output import emit, message, styled
 from formula_tourney.errors import UserInputError
 from formula_tourney.report.renderers import print_whole
+from formula_tourney.safeio import check_output_path
 
 
 def _fmt(x: float | None, digits: int = 3) -> str:
@@ -161,9 +162,13 @@ def register(app: typer.Typer) -> None:
             raise UserInputError(f"--fps: expected 1..60, got {fps}")
         if races < 1:
             raise UserInputError(f"--races: expected at least 1, got {races}")
+        if seed < 0:
+            raise UserInputError(f"--seed: expected 0 or more, got {seed}")
         if races > 1 and (gif or mp4):
             raise UserInputError("--gif/--mp4 render one race: drop --races")
         points_table = _points(points)
+        if out is not None:
+            check_output_path(out, "--out", folder=True)
         if out is not None and (out.exists() and any(out.iterdir()) or not out.parent.is_dir()):
             raise UserInputError(f"--out {out}: must be a new or empty folder in an existing one")
         _check_out(gif, ".gif")
@@ -259,7 +264,7 @@ def register(app: typer.Typer) -> None:
 
         def render(console) -> None:
             for name, v in tables.items():
-                console.print(f"[bold]{name}[/bold]")
+                console.print(styled((name, "bold")))
                 _render_series(v["standings"], v["races"])(console)
         emit(out, as_json, render)
         raise typer.Exit(failures_exit(result))

@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 
 from formula_tourney.commands.output import emit, message
+from formula_tourney.safeio import check_output_path
 
 
 def register(app: typer.Typer) -> None:
@@ -49,6 +50,8 @@ def register(app: typer.Typer) -> None:
         # Loading the report pulls pandas and scipy (about 1 s): only when this command runs.
         from formula_tourney.report.build import build_report
 
+        if out is not None:
+            check_output_path(out, "--out", folder=True)
         chosen = [name for name, on in (("markdown", markdown), ("latex", latex),
                                         ("html", html)) if on]
         if figures or (figures is None and ({"latex", "html"} & set(chosen) or out is not None)):

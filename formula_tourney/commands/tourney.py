@@ -14,6 +14,7 @@ import typer
 
 from formula_tourney.commands.output import emit, message
 from formula_tourney.commands.tourney_view import ProgressView, render_results, render_tune
+from formula_tourney.safeio import check_output_path
 
 EXIT_OK = 0
 EXIT_BAD_INPUT = 2
@@ -92,6 +93,7 @@ def register(app: typer.Typer) -> None:
         """Run a tournament (again: resume it). Jobs are entrant x seed x part."""
         from formula_tourney.tourney.api import run_tournament  # agents, sim: not for --help
 
+        check_output_path(results, "--results", folder=True)
         try:
             result = run_tournament(
                 file, workers=workers, executor=executor, address=address, retries=retries,

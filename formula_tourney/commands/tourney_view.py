@@ -10,12 +10,11 @@ import json
 from typing import Any
 
 from rich.console import Console
-from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from formula_tourney.commands.estimate_view import render_estimate
-from formula_tourney.commands.output import stderr_console
+from formula_tourney.commands.output import stderr_console, styled
 
 
 class ProgressView:
@@ -76,12 +75,12 @@ def render_results(console: Console, result: dict[str, Any]) -> None:
     for part in result["parts"]:
         if part.get("race") is not None:
             race = part["race"]
-            console.print(f"[bold]{part['part']}[/bold] ({part['study']}, race): "
-                          f"{part['status']}" + (f" - {escape(part['reason'])}"
-                                                 if part.get("reason") else "")
-                          + (f"; series {race['status']}, {race['raced']}/{race['races']} "
-                             f"races of {', '.join(race['entrants'])} in {race['path']}"
-                             if race.get("path") else "; waiting for its entrants"))
+            console.print(styled(
+                (part["part"], "bold"), f" ({part['study']}, race): {part['status']}"
+                + (f" - {part['reason']}" if part.get("reason") else "")
+                + (f"; series {race['status']}, {race['raced']}/{race['races']} "
+                   f"races of {', '.join(race['entrants'])} in {race['path']}"
+                   if race.get("path") else "; waiting for its entrants")))
             continue
         table = Table(title=f"{part['part']} ({part['study']}): {part['status']}"
                       + (f" - {part['reason']}" if part.get("reason") else ""))
@@ -102,8 +101,12 @@ def render_results(console: Console, result: dict[str, Any]) -> None:
                           "yes" if base["finished"] else base["status"],
                           f"limit {_fmt(base['reference_limit_s'])}")
         console.print(table)
+    for lost in result.get("lost") or []:
+        console.print(styled(("lost", "yellow"),
+                             f" {lost['job_id']}: done in the index, but {lost['reason']}; "
+                             f"{lost['action']}"))
     for fail in result["failures"]:
-        console.print(f"[red]failed[/red] {escape(fail['job_id'])}: {escape(str(fail['reason']))}")
+        console.print(styled(("failed", "red"), f" {fail['job_id']}: {fail['reason']}"))
     if "wall_s" in result:
         run = result["this_run"]
         console.print(
@@ -111,6 +114,7 @@ def render_results(console: Console, result: dict[str, Any]) -> None:
             f"{run['skipped']} already done"
             + (f", {run['recovered']} recovered from their folders" if run.get("recovered") else "")
             + (f", {run['reopened']} parts re-opened" if run.get("reopened") else "")
+            + (f", {run['lost']} found lost (listed above)" if run.get("lost") else "")
             + f", in {result['wall_s']:.1f} s on "
             f"{result['workers']} {result['executor']} workers"
         )
@@ -123,8 +127,9 @@ def budget_text(env_steps: int | None) -> str:
 
 def render_plan(console: Console, plan: dict[str, Any], results: str) -> None:
     """The dry-run view: one short block per part (fits a narrow terminal)."""
-    console.print(f"[bold]plan of {plan['tournament']}[/bold] -> {results}/"
-                  f"  ({plan['known_jobs']} jobs known now; promoted parts add theirs later)")
+    console.print(styled((f"plan of {plan['tournament']}", "bold"), f" -> {results}/"
+                         f"  ({plan['known_jobs']} jobs known now; promoted parts add theirs "
+                         "later)"))
     if plan.get("description"):
         console.print(f"  {plan['description']}")
     for part in plan["parts"]:
@@ -137,7 +142,7 @@ def render_plan(console: Console, plan: dict[str, Any], results: str) -> None:
         else:
             who = f"promoted from {part['promoted_from']} ({part['rule']})"
             jobs = f"= {part['jobs_per_entrant']} jobs per promoted variant"
-        console.print(f"[bold]{part['part']}[/bold] (study {part['study']}): {escape(who)}")
+        console.print(styled((part["part"], "bold"), f" (study {part['study']}): {who}"))
         console.print(f"    x setups {', '.join(part['setups'])} x {part['seeds']} seeds {jobs}")
         console.print(
             f"    train {', '.join(part['train_tracks'])}; test {', '.join(part['test_tracks'])}"
@@ -148,9 +153,9 @@ def render_plan(console: Console, plan: dict[str, Any], results: str) -> None:
         )
         for entrant, own in (part.get("entrant_settings") or {}).items():
             pairs = ", ".join(f"{k}={json.dumps(v)}" for k, v in own.items())
-            console.print(f"    {escape(entrant)} sets {escape(pairs)} (its entry wins)")
+            console.print(f"    {entrant} sets {pairs} (its entry wins)")
         if part.get("env_overrides"):
-            console.print(f"    env {escape(json.dumps(part['env_overrides']))}")
+            console.print(f"    env {json.dumps(part['env_overrides'])}")
         if part["baselines"]:
             console.print(f"    baselines {', '.join(part['baselines'])}")
 
@@ -159,10 +164,10 @@ def _render_race_plan(console: Console, part: dict[str, Any]) -> None:
     """A race part in the plan: who races (promoted entrants' best seeds, bots), how often and
     how long: one race job once its source part has promoted."""
     bots = part.get("race_bots") or []
-    console.print(f"[bold]{part['part']}[/bold] (study {part['study']}, race): "
-                  f"{escape('promoted from ' + str(part['promoted_from']) + ' (' + part['rule'])})"
-                  f" x setups {', '.join(part['setups'])}, each with its best seed's model"
-                  + (f", + bots {', '.join(bots)}" if bots else ""))
+    console.print(styled((part["part"], "bold"), f" (study {part['study']}, race): "
+                         f"promoted from {part['promoted_from']} ({part['rule']})"
+                         f" x setups {', '.join(part['setups'])}, each with its best seed's "
+                         "model" + (f", + bots {', '.join(bots)}" if bots else "")))
     points = "-".join(f"{p:g}" for p in part.get("race_points") or [])
     console.print(
         f"    {part['races']} races x {part['race_laps']} laps of {part['train_tracks'][0]}; "

@@ -10,10 +10,10 @@ from typing import Any
 
 import numpy as np
 import typer
-from rich.markup import escape
 
-from formula_tourney.commands.output import emit, message
+from formula_tourney.commands.output import emit, message, styled
 from formula_tourney.errors import UserInputError
+from formula_tourney.safeio import check_output_path
 from formula_tourney.sim.catalog import list_tracks, load_track, user_tracks_dir
 from formula_tourney.sim.generate import generate_spec
 from formula_tourney.sim.plot import check_plot_path, plot_tracks
@@ -53,12 +53,12 @@ def _render_summary(summary: dict[str, Any]):
 
     def render(console) -> None:
         radius = summary["min_radius_m"]
-        console.print(
-            f"[bold]{summary['name']}[/bold]  {summary['length_m'] / 1000:.3f} km, "
+        console.print(styled(
+            (summary["name"], "bold"), f"  {summary['length_m'] / 1000:.3f} km, "
             f"{summary['width_m']:g} m wide, min radius "
             f"{'-' if radius is None else f'{radius:.1f} m'}, closure error "
             f"{summary['closure_error_m']:.2e} m  ({summary['source'] or 'built'})"
-        )
+        ))
         if summary.get("saved"):
             console.print(f"saved to {summary['saved']}")
         if summary.get("plot"):
@@ -98,7 +98,8 @@ def _render_import_table(rows: list[dict[str, Any]]):
         for row in rows:
             table.add_row(row["name"], row["category"], _fmt(row["length_m"]),
                           _fmt(row["z_range_m"], 2), _fmt(row["max_banking_deg"]),
-                          "yes" if row["imported"] else f"[red]no[/red]: {escape(row['reason'])}")
+                          "yes" if row["imported"] else styled(("no", "red"),
+                                                               f": {row['reason']}"))
         console.print(table)
 
     return render
@@ -126,7 +127,7 @@ def register(app: typer.Typer) -> None:
                 table.add_column(col, justify="left" if col in ("name", "source") else "right")
             for row in rows:
                 if "error" in row:
-                    table.add_row(row["name"], "-", "-", f"[red]{row['error']}[/red]")
+                    table.add_row(row["name"], "-", "-", styled((row["error"], "red")))
                     continue
                 table.add_row(row["name"], f"{row['length_m'] / 1000:.3f}",
                               f"{row['width_m']:g}", row["source"])
@@ -144,7 +145,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Length, width, minimum radius, closure error and segments of a track."""
         if plot is not None:
-            check_plot_path(plot)
+            check_output_path(check_plot_path(plot), "--plot")
         track = load_track(name)
         summary = track_summary(track)
         if plot is not None:
@@ -201,7 +202,7 @@ def register(app: typer.Typer) -> None:
         if name is not None and not save:
             raise UserInputError("--name only applies with --save")
         if plot is not None:
-            check_plot_path(plot)
+            check_output_path(check_plot_path(plot), "--plot")
         target = (user_track_target(name or f"gen-{seed}", "--save", overwrite=force,
                                     generated_seed=seed) if save else None)
         spec, track = generate_spec(seed, name=name)

@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from rich.text import Text
+
 from formula_tourney.errors import UserInputError
 from formula_tourney.report.claims.evaluate import evaluate_all
 from formula_tourney.report.claims.figures import make_claim_figures
@@ -67,10 +69,10 @@ class Report:
             console.print(self.markdown, markup=False, highlight=False, soft_wrap=True)
             return
         counts = _job_counts(self.data)
-        console.print(f"[bold]{self.data.name}[/bold]  ({self.data.root})  jobs: "
-                      + ", ".join(f"{k} {v}" for k, v in counts.items()))
+        console.print(Text.assemble((self.data.name, "bold"), f"  ({self.data.root})  jobs: "
+                                    + ", ".join(f"{k} {v}" for k, v in counts.items())))
         if self.data.problems:
-            console.print("[yellow]Missing or failed:[/yellow]")
+            console.print(Text("Missing or failed:", style="yellow"))
             for problem in self.data.problems:
                 console.print(f"  - {problem}", markup=False)
         if not self.formats:

@@ -194,7 +194,11 @@ class JobFolder:
             env = self.config().get("env") or {}
         except (FileNotFoundError, CorruptResultError):
             return 1.0
-        return float(env.get("grip_scale", 1.0))
+        grip = env.get("grip_scale", 1.0)
+        if isinstance(grip, bool) or not isinstance(grip, int | float):
+            raise CorruptResultError(f"{self.config_path}: run_spec.env.grip_scale is {grip!r}, "
+                                     "not a number (a grip scale such as 1.0)")
+        return float(grip)
 
     def at_own_grip(self, frame: pd.DataFrame) -> pd.DataFrame:
         """Rows of a tests or laps table at the run's own grip: what the best lap, promotion,

@@ -125,10 +125,14 @@ def check_track_name(name: str, base_dir: Path | None = None) -> str:
     ``gen-<seed>`` (seed in ``0..MAX_SEED``, returned without leading zeros), or an existing
     ``.toml``/``.xml`` file (returned as an absolute path; relative paths resolve against
     ``base_dir``, else the current folder). Anything else -> UserInputError listing the known
-    names. Only existence is checked here: a file that does not parse, or does not close, is
-    refused by :func:`load_track`.
+    names. A track file (the user's or a path) is also built once (cached for the load that
+    follows), so one that does not parse, does not close or has no finite length is refused
+    here, before any job that would drive it starts.
     """
-    return _resolve(name, base_dir).name
+    ref = _resolve(name, base_dir)
+    if ref.path is not None and ref.kind != "builtin":
+        _load_file(str(ref.path), ref.path.stat().st_mtime_ns)
+    return ref.name
 
 
 def load_track(name_or_path: str | os.PathLike | Track, base_dir: Path | None = None) -> Track:

@@ -341,13 +341,33 @@ def pedal_action(controls: np.ndarray) -> np.ndarray:
     return np.stack([controls[..., 0], controls[..., 1] - controls[..., 2]], axis=-1)
 
 
+_REAL_KINDS = "fiu"
+"""NumPy dtype kinds an action may have: float, int, unsigned. Strings, bools and complex
+numbers would be cast (``"0.5"`` parsed, ``True`` made 1, an imaginary part dropped)."""
+
+
 def _as_array(action: Any, shape: tuple[int, ...]) -> np.ndarray:
     try:
-        return np.asarray(action, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InvalidActionError(
-            f"action: expected finite numbers of shape {shape} (steer, throttle, brake), got "
-            f"{type(action).__name__} {action!r:.80}") from None
+        array = np.asarray(action)
+    except (TypeError, ValueError):  # a ragged list
+        raise _bad_dtype(action, shape) from None
+    if array.dtype.kind == "O" and all(x is None or _is_real(x) for x in array.flat):
+        array = array.astype(np.float64)  # None becomes NaN, which the finite check names
+    if array.dtype.kind not in _REAL_KINDS:
+        raise _bad_dtype(action, shape)
+    return array.astype(np.float64, copy=False)
+
+
+def _is_real(value: Any) -> bool:
+    return isinstance(value, int | float | np.integer | np.floating) and not isinstance(
+        value, bool | np.bool_)
+
+
+def _bad_dtype(action: Any, shape: tuple[int, ...]) -> InvalidActionError:
+    kind = getattr(getattr(action, "dtype", None), "name", None) or type(action).__name__
+    return InvalidActionError(
+        f"action: expected real numbers (float or int) of shape {shape} (steer, throttle, "
+        f"brake), got {kind} {action!r:.80}")
 
 
 def _bad_action(action: np.ndarray, shape: tuple[int, ...]) -> InvalidActionError:
@@ -500,7 +520,7 @@ class FormulaRacingEnv(gymnasium.Env):
         row = self._act_row
         # A cheap check (~0.5 us of a ~7 us step), not action_space.contains: NumPy would
         # broadcast a scalar into all three controls and turn None into NaN.
-        if type(action) is not np.ndarray:
+        if type(action) is not np.ndarray or action.dtype.kind not in _REAL_KINDS:
             action = _as_array(action, _ACTION_SHAPE)
         if action.shape != _ACTION_SHAPE:
             raise _bad_action(action, _ACTION_SHAPE)
@@ -590,8 +610,14 @@ class FormulaRacingVectorEnv(VectorEnv):
         self._finite = np.zeros(self._action_shape, dtype=bool)
 
     def reset(self, *, seed: int | list[int] | None = None, options: dict | None = None):
-        if isinstance(seed, list):
-            seed = seed[0] if seed else None
+        if isinstance(seed, list | tuple):
+            # one generator draws every car's start: a list can only name that one seed
+            distinct = set(seed)
+            if len(distinct) > 1:
+                raise ValueError(
+                    f"reset(seed={list(seed)!r:.80}): the cars' starts come from one generator; "
+                    "give one int seed (or a list of one seed repeated)")
+            seed = next(iter(distinct), None)
         self._np_random, self._np_random_seed = gymnasium.utils.seeding.np_random(seed)
         b = self._b
         opts = ResetOptions.parse(options)
@@ -606,7 +632,7 @@ class FormulaRacingVectorEnv(VectorEnv):
         # Lean on purpose: the Python side was ~60-100 us of a 64-car step (~1/3 of it once the
         # kernel was fast); method calls (nonzero, fill) instead of NumPy's wrapper functions.
         b = self._b
-        if type(actions) is not np.ndarray:
+        if type(actions) is not np.ndarray or actions.dtype.kind not in _REAL_KINDS:
             actions = _as_array(actions, self._action_shape)
         if actions.shape != self._action_shape:
             raise _bad_action(actions, self._action_shape)

@@ -120,7 +120,8 @@ def run_tournament(
         result = collect_results(store, planner.spec.name, planned)
         store.close()
     result.update(wall_s=time.perf_counter() - started, workers=pool.workers, executor=executor,
-                  this_run=scheduler.counts, index_moved_to=str(moved) if moved else None)
+                  this_run=scheduler.counts, lost=scheduler.lost,
+                  index_moved_to=str(moved) if moved else None)
     return result
 
 

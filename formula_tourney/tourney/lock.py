@@ -14,6 +14,7 @@ from pathlib import Path
 
 from formula_tourney.errors import UserInputError
 from formula_tourney.results.layout import LOCK_FILE
+from formula_tourney.safeio import make_dirs
 
 
 class RunLock:
@@ -27,7 +28,7 @@ class RunLock:
 
     def acquire(self) -> RunLock:
         """Take the lock or raise UserInputError naming the folder and the holder's pid."""
-        self.root.mkdir(parents=True, exist_ok=True)
+        make_dirs(self.root, "results folder")
         fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)

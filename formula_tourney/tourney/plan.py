@@ -22,7 +22,7 @@ from pydantic_core import to_jsonable_python
 
 from formula_tourney.agents.variants import get_variant
 from formula_tourney.errors import UserInputError
-from formula_tourney.results.layout import baseline_rel_path, job_rel_path
+from formula_tourney.results.layout import baseline_rel_path, job_rel_path, trace_name
 from formula_tourney.sim.catalog import check_track_name
 from formula_tourney.tourney.jobs import Job
 from formula_tourney.tourney.spec import (
@@ -119,6 +119,17 @@ def baseline_digest(spec: dict[str, Any]) -> str:
     return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:16]
 
 
+def _shared_trace(tracks: tuple[str, ...]) -> tuple[str, str] | None:
+    """Two distinct tracks whose trace files (``results.layout.trace_name``) would be one file,
+    else None: one test drive would overwrite the other's trace and baseline."""
+    seen: dict[str, str] = {}
+    for track in tracks:
+        other = seen.setdefault(trace_name(track), track)
+        if other != track:
+            return other, track
+    return None
+
+
 class Planner:
     """Jobs of one tournament file; run specs are built once per part x variant x setup."""
 
@@ -145,6 +156,14 @@ class Planner:
                 except UserInputError as err:
                     raise error_at(self.path, self.text, ("parts", index, key),
                                    str(err)) from None
+            clash = _shared_trace(found[1])
+            if clash is not None:
+                key = "test_tracks" if part.test_tracks else "train_tracks"
+                raise error_at(self.path, self.text, ("parts", index, key),
+                               f"tracks {clash[0]!r} and {clash[1]!r} would share the trace "
+                               f"and baseline file name {trace_name(clash[0])!r} (characters "
+                               "other than A-Z a-z 0-9 _ . + - become '_', names are cut at "
+                               "100 characters): rename one of the files")
             self._tracks[index] = (found[0], found[1])
         return self._tracks[index]
 

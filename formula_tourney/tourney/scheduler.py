@@ -79,7 +79,10 @@ class Scheduler:
         self.running: dict[str, tuple[Job, int]] = {}
         self.attempts: dict[str, int] = {}
         self.counts = {"done": 0, "failed": 0, "retried": 0, "skipped": 0, "recovered": 0,
-                       "reopened": 0}  # fmt: skip
+                       "reopened": 0, "lost": 0}  # fmt: skip
+        self.lost: list[dict[str, str]] = []
+        """Jobs the index held as done whose files were lost (``JobKind.lost``), with the
+        reason and what this run did: shown in the run's summary."""
 
     # -------------------------------------------------------------- setup
     def _downstream(self, names: set[str]) -> set[str]:
@@ -171,13 +174,12 @@ class Scheduler:
         store.set_part(part.name, entrants=list(dict.fromkeys(
             e for j in jobs for e in kind_of(j.kind).entrants(j))))
         statuses = {}
-        reopen = False
-        for job in jobs:
-            statuses[job.job_id], lost = self._reconcile_job(job, state, job.job_id in known)
-            reopen = reopen or lost
-        if reopen and state.status == "done":
-            state.status = "pending"
-            store.set_part(part.name, status="pending")
+        # the kinds that re-open a part first: the lost files of the others then run again too
+        for job in sorted(jobs, key=lambda j: kind_of(j.kind).lost_files != "reopen_part"):
+            statuses[job.job_id], reopen = self._reconcile_job(job, state, job.job_id in known)
+            if reopen and state.status == "done":
+                state.status = "pending"
+                store.set_part(part.name, status="pending")
         self.counts["skipped"] += sum(s == "done" for s in statuses.values())
         if state.status in ("done", "failed"):
             return  # frozen: its promotion was made on these results
@@ -197,10 +199,15 @@ class Scheduler:
         kind = kind_of(job.kind)
         status = (self.store.job(job.job_id) or {}).get("status", "pending")
         if status == "done":
-            if kind.lost_files == "trust_index" or kind.finished(job):
+            reason = kind.lost(job)
+            if reason is None:
                 return status, False
             reopen = kind.lost_files == "reopen_part"
-            if reopen or state.status not in ("done", "failed"):
+            rerun = reopen or state.status not in ("done", "failed")
+            self.lost.append({"job_id": job.job_id, "reason": reason,
+                              "action": "run again" if rerun else "kept (its part is closed)"})
+            self.counts["lost"] += 1
+            if rerun:
                 self.store.mark_pending(job.job_id)
                 return "pending", reopen
             return status, False

@@ -34,10 +34,24 @@ from formula_tourney.claims.schema import ClaimSet
 from formula_tourney.errors import UserInputError
 from formula_tourney.lines.kinds import LINE_LABELS, ReferenceKind
 from formula_tourney.race.settings import RaceSettings
+from formula_tourney.results.layout import (
+    BASELINE_DIR,
+    ESTIMATE_FILE,
+    INDEX_FILE,
+    LOCK_FILE,
+    OPTUNA_DIR,
+    RACES_DIR,
+)
 from formula_tourney.safeio import check_name, read_user_text
 from formula_tourney.sim.config import RUN_OWNED_KEYS, EnvSettings
-from formula_tourney.training.presets import PRESETS
-from formula_tourney.training.run_spec import RUN_OWNED_HINTS, DemoSettings, RunSpec, Schedule
+from formula_tourney.training.presets import PRESETS, get_preset
+from formula_tourney.training.run_spec import (
+    MAX_SEED,
+    RUN_OWNED_HINTS,
+    DemoSettings,
+    RunSpec,
+    Schedule,
+)
 
 MAX_SPEC_BYTES = 1024 * 1024
 """Largest tournament or tune file read (1 MiB; study2.toml is under 4 KiB). A bigger file is
@@ -60,8 +74,28 @@ def default_family(variant: str) -> str:
     return match.group(0).upper() if match else variant
 
 
+RESERVED_NAMES: tuple[str, ...] = (INDEX_FILE, ESTIMATE_FILE, LOCK_FILE, OPTUNA_DIR,
+                                   BASELINE_DIR, RACES_DIR)
+"""Names the results folder of a tournament uses itself (``results.layout``): a part named so
+would be a folder where a file lives. Names starting with one are refused too (the index's
+``index.sqlite.corrupt``, ``index.sqlite-journal``)."""
+
+MAX_NESTING = 100
+"""Deepest nesting of arrays and inline tables read (a tournament file needs 4)."""
+
+
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+def _check_preset(value: str | None) -> str | None:
+    """A preset name known to ``training.presets`` (its error lists the known ones)."""
+    if value is not None:
+        try:
+            get_preset(value)
+        except UserInputError as err:
+            raise ValueError(str(err)) from None
+    return value
 
 
 def _unset_or(model: type[BaseModel], name: str) -> Any:
@@ -101,6 +135,8 @@ class VariantEntry(_Strict):
         description=f"Named settings preset (training.presets: {', '.join(PRESETS)}); wins "
         "over the part's; anything but 'paper' is labelled beyond the paper.",
     )
+
+    _preset = field_validator("preset")(_check_preset)
 
 
 class Setup(_Strict):
@@ -179,7 +215,8 @@ class JobSettings(_Strict):
     """Training settings of every job in a part; unset values fall back to [defaults], then to
     the run specification's own defaults (``training.run_spec.Schedule`` and ``RunSpec``)."""
 
-    seeds: int | None = Field(None, ge=1, le=1000, description="Independent runs per entrant.")
+    seeds: int | None = Field(None, ge=1, le=1000, strict=True,
+                              description="Independent runs per entrant.")
     episodes: _unset_or(Schedule, "episodes") = None
     env_steps: _unset_or(Schedule, "env_steps") = None
     max_steps: _unset_or(Schedule, "max_steps") = None
@@ -211,6 +248,8 @@ class JobSettings(_Strict):
         description="Hyperparameters applied to every variant here (e.g. smaller nets for a "
         "demo); a variant's own overrides win.",
     )
+
+    _preset = field_validator("preset")(_check_preset)
 
     @field_validator("env_overrides", mode="before")
     @classmethod
@@ -294,9 +333,13 @@ class Part(JobSettings):
     @classmethod
     def _safe_name(cls, value: str) -> str:
         try:
-            return check_name(value, "name")
+            check_name(value, "name")
         except UserInputError as err:
             raise ValueError(str(err)) from None
+        if value.startswith(RESERVED_NAMES):
+            raise ValueError(f"{value!r} is a name the results folder uses itself; a part or "
+                             f"study name must not start with {', '.join(RESERVED_NAMES)}")
+        return value
 
     @model_validator(mode="after")
     def _one_source(self) -> Part:
@@ -326,7 +369,8 @@ class Tournament(_Strict):
 
     name: str = Field(description="Tournament name: results go to <results>/<name>/.")
     description: str = Field("", description="One line shown by --dry-run and the report.")
-    seed_base: int = Field(0, ge=0, description="Seed of run n is seed_base + n.")
+    seed_base: int = Field(0, ge=0, le=MAX_SEED - 1000, strict=True,
+                           description="Seed of run n is seed_base + n.")
     variants: dict[str, VariantEntry] = Field(
         default_factory=dict,
         description="Competitors by name. Undeclared registered variants (the paper's WIN1 ... "
@@ -604,10 +648,42 @@ def read_spec_text(path: Path, what: str) -> str:
 def parse_toml(text: str, path: Path) -> dict[str, Any]:
     """TOML text as a dict; bad TOML is one line naming ``path`` (tournament, tune and claims
     files all read through here)."""
+    depth = _nesting_depth(text)
+    if depth > MAX_NESTING:
+        raise UserInputError(f"{path}: arrays or inline tables nested {depth} deep; at most "
+                             f"{MAX_NESTING} levels of nesting are read")
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise UserInputError(f"{path}: not valid TOML: {err}") from None
+
+
+def _nesting_depth(text: str) -> int:
+    """Deepest run of open ``[``/``{`` outside strings and comments, found in one linear scan
+    (tomllib recurses once per level and would raise RecursionError first)."""
+    depth = deepest = 0
+    quote: str | None = None
+    escaped = comment = False
+    for char in text:
+        if comment:
+            comment = char != "\n"
+        elif quote is not None:
+            if escaped:
+                escaped = False
+            elif char == "\\" and quote == '"':
+                escaped = True
+            elif char == quote:
+                quote = None
+        elif char in "\"'":
+            quote = char
+        elif char == "#":
+            comment = True
+        elif char in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif char in "]}":
+            depth = max(depth - 1, 0)
+    return deepest
 
 
 def parse_spec(text: str, path: Path) -> Tournament:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import sqlite3
 import time
 from collections.abc import Iterable, Iterator, Mapping
@@ -26,11 +27,15 @@ from typing import Any
 
 import pandas as pd
 
+from formula_tourney.errors import UserInputError
 from formula_tourney.results.folder import CorruptResultError, JobFolder
 from formula_tourney.results.index import decode_job, is_legacy, legacy_job_rows
 from formula_tourney.results.layout import INDEX_FILE, INDEX_SCHEMA, INDEX_TABLES, JOB_TABLES
+from formula_tourney.safeio import make_dirs
 
 REBUILD_HINT = "run again with --rebuild-index to move it aside and rebuild it from the job folders"
+_NOT_DAMAGED = re.compile(r"disk is full|disk I/O error|readonly|read-only|unable to open")
+"""SQLite's words for a failure of the disk or the folder, not of the index's content."""
 
 
 def now_iso() -> str:
@@ -57,7 +62,7 @@ class Store:
     @property
     def db(self) -> sqlite3.Connection:
         if self._db is None:
-            self.root.mkdir(parents=True, exist_ok=True)
+            make_dirs(self.root, "results folder")
             db = sqlite3.connect(self.index_path, timeout=30, isolation_level=None)
             db.row_factory = sqlite3.Row
             try:
@@ -117,7 +122,14 @@ class Store:
                     f"lacks {', '.join(missing)}); {REBUILD_HINT}"
                 )
 
-    def _corrupt(self, err: sqlite3.DatabaseError) -> CorruptResultError:
+    def _corrupt(self, err: sqlite3.DatabaseError) -> UserInputError:
+        """The error of a failed read or write: a full disk or a folder that cannot be written
+        is said as such (the index is intact: the same command resumes once it is fixed); any
+        other database error is a damaged index, which ``--rebuild-index`` replaces."""
+        if isinstance(err, sqlite3.OperationalError) and _NOT_DAMAGED.search(str(err)):
+            return UserInputError(f"{self.index_path}: cannot write the results index ({err}); "
+                                  "the index is intact: free space (or fix the folder's "
+                                  "permissions) and run the same command again to resume")
         return CorruptResultError(f"{self.index_path}: cannot read the results index ({err}); "
                                   f"{REBUILD_HINT}")
 
@@ -159,7 +171,8 @@ class Store:
             try:
                 yield db
             except BaseException:
-                db.execute("ROLLBACK")
+                if db.in_transaction:  # SQLite ends it itself on a full disk: keep that error
+                    db.execute("ROLLBACK")
                 raise
             db.execute("COMMIT")
         except sqlite3.DatabaseError as err:

@@ -39,6 +39,7 @@ from formula_tourney.agents.noise import BrakeExplorationNoise, linear_epsilon
 from formula_tourney.results.folder import JobFolder
 from formula_tourney.results.layout import BEST_CHECKPOINT, LAST_CHECKPOINT
 from formula_tourney.results.metrics import model_clean_lap_s
+from formula_tourney.safeio import make_dirs
 from formula_tourney.sim.reward import RewardRule
 from formula_tourney.training.budget import CpuClock, StopRule
 from formula_tourney.training.collect import SingleCarCollector, VectorCollector, split_cars
@@ -149,7 +150,7 @@ def train(
         demo_seconds = time.perf_counter() - t_demo
         stop_rule = stop_rule.with_demonstrator(demo_summary.get("lap_s"))
 
-    out.mkdir(parents=True, exist_ok=True)
+    make_dirs(out, "job folder")
     spec_json = spec.to_json()
     folder.write_config(spec_json, spec.beyond_paper())
     writer = SummaryWriter(str(folder.tb_dir))

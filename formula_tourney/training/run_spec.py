@@ -38,7 +38,12 @@ from pydantic import (
     model_validator,
 )
 
-from formula_tourney.agents.variants import AgentConfig, get_variant, named_settings
+from formula_tourney.agents.variants import (
+    AgentConfig,
+    get_variant,
+    named_settings,
+    validation_problems,
+)
 from formula_tourney.errors import UserInputError
 from formula_tourney.field_marks import added_in_layout, beyond_paper, marks
 from formula_tourney.lines.kinds import ReferenceKind
@@ -60,18 +65,25 @@ RUN_OWNED_HINTS: dict[str, str] = {
 """Where to set each env key that a run owns, for the error when an override names one."""
 
 
+MAX_SEED = 2**32 - 1
+"""Largest seed: numpy's legacy and numba's generators take 32-bit seeds."""
+
+
 class _Frozen(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    """Floats are finite in every model here (``inf`` is no budget or grip a run can use)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Schedule(_Frozen):
     """How long a run trains and how often, from where and how long it is tested."""
 
-    episodes: int = Field(100, ge=1, description="Training episodes.")
+    episodes: int = Field(100, ge=1, le=10**9, strict=True, description="Training episodes.")
     env_steps: int | None = Field(
         None,
         ge=1,
         le=10**10,
+        strict=True,
         description="Env-step budget: the run also ends at the first finished episode at or "
         "after this many env steps (car-steps), with a last test round. Episodes are a poor "
         "clock on a hard track (a run that crashes early spends hundreds of episodes in a few "
@@ -80,19 +92,23 @@ class Schedule(_Frozen):
         json_schema_extra=marks(added_in_layout=2),
     )
     max_steps: int = Field(
-        1000, ge=1, description="Control steps per training episode (truncated at the end)."
+        1000, ge=1, le=10**7,
+        strict=True, description="Control steps per training episode (truncated at the end)."
     )
     random_start: bool = Field(
         True, description="Start training episodes at random places on the track."
     )
     test_every_episodes: int = Field(
-        10, ge=1, description="Run the tests after every this many training episodes (and last)."
+        10, ge=1, le=10**9,
+        strict=True, description="Run the tests after every this many training episodes (and last)."
     )
     test_starts: int = Field(
-        3, ge=1, le=64, description="Start positions per test track, evenly spaced on the lap."
+        3, ge=1, le=64,
+        strict=True, description="Start positions per test track, evenly spaced on the lap."
     )
     test_max_steps: int = Field(
-        1500, ge=1, description="Control steps per test episode (enough for two laps)."
+        1500, ge=1, le=10**7,
+        strict=True, description="Control steps per test episode (enough for two laps)."
     )
     save_test_checkpoints: bool = Field(
         False, description="Keep a checkpoint ep-<N>.pt at every test, not only best and last."
@@ -135,6 +151,7 @@ class Schedule(_Frozen):
         1,
         ge=1,
         le=1024,
+        strict=True,
         description="Cars driven at once into the one replay buffer (FormulaRacingVectorEnv, "
         "each car its own episodes, windows and n-step sums). 1: one FormulaRacing-v0 env with "
         "a train track drawn per episode (the paper's loop). With several train tracks the "
@@ -149,6 +166,7 @@ class Schedule(_Frozen):
         0,
         ge=0,
         le=19,
+        strict=True,
         description="Traffic while training (beyond the paper): this many follower bots drive "
         "around the learner in every training episode (bots.traffic_env.TrafficEnv, "
         "alternately ahead and behind, 30-150 m apart) and the observation gets the 36 "
@@ -225,7 +243,8 @@ class RunSpec(_Frozen):
     )
     lac: bool = Field(False, description="Add the look-ahead curvature (LAC) to the observation.")
     schedule: Schedule = Field(default_factory=Schedule, description="Training and tests.")
-    seed: int = Field(0, ge=0, description="Seed of weights, replay, exploration and env starts.")
+    seed: int = Field(0, ge=0, le=MAX_SEED, strict=True,
+                      description="Seed of weights, replay, exploration and env starts.")
     device: Device = Field("auto", description="Torch device: auto picks CUDA when present.")
     threads: int = Field(
         1, ge=1, le=256, description="torch threads in this process (one per worker measured best)."
@@ -342,7 +361,8 @@ class RunSpec(_Frozen):
         try:
             return cls.model_validate(dict(data))
         except ValidationError as err:
-            raise UserInputError(f"{source}: not a run specification: {_problems(err)}") from None
+            raise UserInputError(
+                f"{source}: not a run specification: {validation_problems(err)}") from None
 
 
 def _setting_label(key: str, value: Any) -> str:
@@ -355,10 +375,6 @@ def _setting_label(key: str, value: Any) -> str:
     return f"{key} {value:g}"
 
 
-def _problems(err: ValidationError) -> str:
-    return "; ".join(
-        f"{'.'.join(str(p) for p in e['loc']) or 'value'}: {e['msg']}" for e in err.errors()
-    )
 
 
 _SECTIONS: dict[str, type[BaseModel]] = {
@@ -450,7 +466,7 @@ def build_run_spec(
             preset=preset,
         )  # fmt: skip
     except ValidationError as err:
-        raise UserInputError(f"{source}: {_problems(err)}") from None
+        raise UserInputError(f"{source}: {validation_problems(err)}") from None
 
 
 def _env_settings(overrides: Mapping[str, Any] | EnvSettings | None, source: str,

@@ -24,7 +24,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, ClassVar, Literal
 
+from formula_tourney.results.folder import CorruptResultError
 from formula_tourney.results.index import JOB_COLUMNS
+from formula_tourney.safeio import make_dirs
 from formula_tourney.tourney.jobs import Job
 from formula_tourney.tourney.plan import PlannedPart, Planner
 from formula_tourney.tourney.store import Store
@@ -32,12 +34,12 @@ from formula_tourney.tourney.store import Store
 Progress = Callable[[dict[str, Any]], Any]
 """What a running job reports now and then: episode, episodes, best_lap_s, env_steps."""
 
-LostFiles = Literal["trust_index", "rerun_if_open", "reopen_part"]
+LostFiles = Literal["rerun_if_open", "reopen_part"]
 """What a resumed run does with a job the index has as done whose folder no longer holds its
-finished result (deleted, or written with other settings): ``trust_index`` keeps it done (a
-training run: its numbers are in the index, and its part's promotion was made on them);
-``rerun_if_open`` runs it again while its part is open; ``reopen_part`` runs it again and
-re-opens its part if that part had closed, as it does when the index never held the job."""
+finished result (:meth:`JobKind.lost`: deleted, a file cut short, written with other settings):
+``rerun_if_open`` runs it again while its part is open (and keeps the index's result in a
+closed part); ``reopen_part`` runs it again and re-opens its part if that part had closed, as
+it does when the index never held the job. Either way the run's summary lists it."""
 
 
 class CannotRun(Exception):
@@ -95,6 +97,20 @@ class JobKind(ABC):
         """The finished job's ``result_fields``, read from its folder; CorruptResultError
         naming the file when it cannot be read."""
 
+    def lost(self, job: Job) -> str | None:
+        """Why the job's folder no longer holds its finished result (gone, unfinished, written
+        with other settings, a file that cannot be read back), else None. The index is not
+        trusted alone: a resume checks the files a report will read."""
+        if not Path(job.out_dir).is_dir():
+            return f"its folder {job.out_dir} is missing"
+        if not self.finished(job):
+            return f"its folder {job.out_dir} no longer holds its finished result"
+        try:
+            self.result(job)
+        except CorruptResultError as err:
+            return str(err)
+        return None
+
     def show(self, planned: PlannedPart, rows: list[dict[str, Any]], root: Path
              ) -> dict[str, Any]:
         """Keys this kind adds to a part's entry in a run's summary (``tourney.summary``),
@@ -116,7 +132,7 @@ def fresh_dir(out_dir: Path) -> None:
     """An unfinished folder is a crashed attempt: start it again from empty."""
     if out_dir.exists():
         shutil.rmtree(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    make_dirs(out_dir, "job folder")
 
 
 def number(value: Any) -> float | None:

@@ -3,8 +3,9 @@
 The plan builds the run specification once, in the parent (``tourney.plan.Planner.jobs``); the
 worker reads it back from the job's JSON (nothing is re-validated or re-defaulted there) and the
 trainer writes the job folder, ``summary.json`` last. Its result in the index is the numbers
-promotion ranks on (``tourney.outcomes.job_metrics``). A done training job is trusted: its
-part's promotion was decided on its numbers.
+promotion ranks on (``tourney.outcomes.job_metrics``). A done training job whose folder is gone
+or holds a table that cannot be read back runs again, re-opening its part: the same seed gives
+the same numbers, so the promotion made on them stands, and the report gets its files back.
 """
 
 from __future__ import annotations
@@ -12,7 +13,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from formula_tourney.results.folder import JobFolder
+from formula_tourney.results.folder import CorruptResultError, JobFolder
+from formula_tourney.results.layout import JOB_TABLES
 from formula_tourney.tourney.jobs import Job
 from formula_tourney.tourney.kinds.base import JobKind, Progress, fresh_dir, number
 from formula_tourney.tourney.outcomes import job_metrics
@@ -30,7 +32,7 @@ class TrainKind(JobKind):
     attrs = ("study", "entrant", "variant", "family", "seed", "reference", "lac",
              "train_tracks")
     result_fields = ("best_lap_s", "finished", "damage", "train_seconds", "test_distance_m")
-    lost_files = "trust_index"
+    lost_files = "reopen_part"
     changed_settings = "already ran in {root} with other settings"
 
     def make(self, planner: Planner, planned: PlannedPart, store: Store,
@@ -52,6 +54,19 @@ class TrainKind(JobKind):
     def finished(self, job: Job) -> bool:
         return JobFolder(job.out_dir).is_finished()
 
+    def lost(self, job: Job) -> str | None:
+        """Also every table of the folder (episodes, tests, laps) must read back."""
+        reason = super().lost(job)
+        if reason is not None:
+            return reason
+        folder = JobFolder(job.out_dir)
+        for table in JOB_TABLES:
+            try:
+                folder.table(table)
+            except CorruptResultError as err:
+                return str(err)
+        return None
+
     def result(self, job: Job) -> dict[str, Any]:
         metrics = job_metrics(job.out_dir, job.config_hash)
         return {"best_lap_s": number(metrics["best_lap_s"]),
@@ -69,7 +84,7 @@ class TrainKind(JobKind):
         from formula_tourney.training.loop import train
 
         folder = JobFolder(job.out_dir)
-        if folder.is_finished():
+        if self.lost(job) is None:
             return folder.summary()
         spec = RunSpec.from_json(job.spec, f"job {job.job_id}")
         fresh_dir(folder.path)

@@ -88,9 +88,13 @@ def run_tune(
     root = Path(results_dir) / spec.name
     journal = root / "optuna" / f"{variant}.journal"
     study_name = f"{spec.name}-{variant}"
+    if resume and storage is None and not journal.is_file():
+        raise UserInputError(f"--resume: no study {study_name!r} ({journal} does not exist)")
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    # A storage URL is opened before the lock: a bad one leaves nothing in the results folder.
+    url_store = None if storage is None else storage_for(storage, journal, spec.max_retry)
     with RunLock(root, what="tune"):
-        optuna.logging.set_verbosity(optuna.logging.WARNING)
-        store = storage_for(storage, journal, spec.max_retry)
+        store = url_store or storage_for(None, journal, spec.max_retry)
         names = [s.study_name for s in optuna.get_all_study_summaries(store)]
         if study_name in names and not resume:
             raise UserInputError(f"study {study_name!r} already exists in "

@@ -21,6 +21,8 @@ from optuna.storages import JournalStorage
 from optuna.storages.journal import JournalFileBackend
 from optuna.trial import TrialState
 
+from formula_tourney.errors import UserInputError
+from formula_tourney.safeio import make_dirs
 from formula_tourney.tourney.tune.spec import SearchParam, TuneSpec
 
 HEARTBEAT_INTERVAL_S = 30
@@ -61,25 +63,44 @@ def decode_params(params: dict[str, Any], search: dict[str, SearchParam]) -> dic
     return out
 
 
+STORAGE_SCHEMES = ("sqlite", "postgresql", "mysql")
+"""``--storage`` URLs taken (SQLAlchemy's, with an optional driver: ``postgresql+psycopg2``)."""
+
+
 def storage_for(url: str | None, journal: Path, max_retry: int) -> Any:
+    """The study's storage: the journal file, or the RDB at ``url``. A URL of another scheme,
+    or one that cannot be opened (a folder that does not exist, a server that does not answer),
+    is one UserInputError naming it; nothing is written then."""
     if url is None:
-        journal.parent.mkdir(parents=True, exist_ok=True)
+        make_dirs(journal.parent, "study folder")
         return JournalStorage(JournalFileBackend(str(journal)))
-    if url.startswith(("sqlite:", "postgresql", "mysql")):
-        callback_cls = getattr(optuna.storages, "RetryHeartbeatStaleTrialCallback", None) or (
-            optuna.storages.RetryFailedTrialCallback
+    scheme = url.split(":", 1)[0].split("+", 1)[0] if ":" in url else ""
+    if scheme not in STORAGE_SCHEMES:
+        raise UserInputError(f"--storage {url!r}: unknown scheme {scheme!r}; allowed: "
+                             f"{', '.join(f'{s}://...' for s in STORAGE_SCHEMES)}")
+    try:
+        return _rdb_storage(url, max_retry)
+    except Exception as err:  # SQLAlchemy's errors run over many lines and name no option
+        first = (str(err).strip().splitlines() or [type(err).__name__])[0]
+        raise UserInputError(f"--storage {url!r}: cannot open the study storage ({first})") \
+            from None
+
+
+def _rdb_storage(url: str, max_retry: int) -> Any:
+    """Optuna's RDB storage with heartbeats and a retry of stale trials."""
+    callback_cls = getattr(optuna.storages, "RetryHeartbeatStaleTrialCallback", None) or (
+        optuna.storages.RetryFailedTrialCallback
+    )
+    # Optuna 4.9 renamed failed_trial_callback to heartbeat_stale_trial_callback.
+    params = inspect.signature(optuna.storages.RDBStorage).parameters
+    key = ("heartbeat_stale_trial_callback" if "heartbeat_stale_trial_callback" in params
+           else "failed_trial_callback")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+        return optuna.storages.RDBStorage(
+            url, heartbeat_interval=HEARTBEAT_INTERVAL_S, grace_period=HEARTBEAT_GRACE_S,
+            **{key: callback_cls(max_retry=max_retry)},
         )
-        # Optuna 4.9 renamed failed_trial_callback to heartbeat_stale_trial_callback.
-        params = inspect.signature(optuna.storages.RDBStorage).parameters
-        key = ("heartbeat_stale_trial_callback" if "heartbeat_stale_trial_callback" in params
-               else "failed_trial_callback")
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-            return optuna.storages.RDBStorage(
-                url, heartbeat_interval=HEARTBEAT_INTERVAL_S, grace_period=HEARTBEAT_GRACE_S,
-                **{key: callback_cls(max_retry=max_retry)},
-            )
-    return url  # e.g. a gRPC proxy; Optuna parses it
 
 
 def retry_count(trial: Any) -> int:
