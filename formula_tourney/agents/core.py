@@ -206,6 +206,9 @@ class Agent:
     mlp_backend: ClassVar[bool] = False
     """Whether the hand-written backend (``mlp_update.py``, DDPG's equations) may run this
     family's update when its networks are the MLP actor and critic."""
+    moves_targets: ClassVar[bool] = True
+    """Whether an actor step moves target networks toward the online ones (Polyak); a family
+    whose target comes from the online critic (CrossQ) says False."""
 
     def __init__(
         self,
@@ -446,23 +449,13 @@ class Agent:
         backend. With twin critics ``q`` and ``td`` are ``(2, B)``, row 0 for Q_1."""
         cfg = self.cfg
         b = self._tensors(batch)
-        obs = b["observations"]
-        past_actions = b["action_windows"][:, :-1]  # empty unless the LSTM critic reads them
         # a delayed family steps the actor and the targets on the d-th, 2d-th, ... update
         step_actor = (self.updates + 1) % self._policy_delay == 0
 
-        y = self.target(b["rewards"], b["discounts"], b["next_observations"],
-                        b["next_action_windows"])  # fmt: skip
-
         # the critic loss, importance-weighted under PER, and the actor loss, both at the same
-        # critic parameters; sharing the critic's state path between Q(s, a) and Q(s, pi(s))
-        # skips ~20% of the update's FLOPs
+        # critic parameters
         actions = b["actions"].requires_grad_(cfg.prioritized)
-        if step_actor:
-            policy_action, log_pi = self._policy_action(obs)
-            q, q_pi = self.critic.q_pair(obs, actions, policy_action, past_actions)
-        else:  # between actor steps: the critics alone
-            q = self.critic(obs, actions, past_actions)
+        q, y, policy_action, log_pi, q_pi = self._critic_values(b, actions, step_actor)
         td = y - q
         critic_loss = (b["weights"] * td.square()).mean()  # twins: the mean of L(Q_1), L(Q_2)
         q_1, td_1 = (q[0], td[0]) if self.twin_critics else (q, td)
@@ -500,12 +493,31 @@ class Agent:
             q_mean=float(q.detach().mean()), td_abs_mean=float(td.detach().abs().mean()),
         )  # fmt: skip
 
+    def _critic_values(
+        self, b: dict[str, torch.Tensor], actions: torch.Tensor, step_actor: bool
+    ) -> tuple[torch.Tensor, torch.Tensor, Any, Any, Any]:
+        """``Q(s, a)``, the target ``y``, and on an actor step ``pi(s)``, its log-probability
+        and ``Q(s, pi(s))`` (None between actor steps): eq. (1) from the family's ``target``,
+        then the critic. Sharing the critic's state path between Q(s, a) and Q(s, pi(s)) skips
+        ~20% of the update's FLOPs. A family whose target needs the critic's own pass on the
+        next states (CrossQ) overrides this one step of the update."""
+        obs = b["observations"]
+        past_actions = b["action_windows"][:, :-1]  # empty unless the LSTM critic reads them
+        y = self.target(b["rewards"], b["discounts"], b["next_observations"],
+                        b["next_action_windows"])  # fmt: skip
+        if not step_actor:  # between actor steps: the critics alone
+            return self.critic(obs, actions, past_actions), y, None, None, None
+        policy_action, log_pi = self._policy_action(obs)
+        q, q_pi = self.critic.q_pair(obs, actions, policy_action, past_actions)
+        return q, y, policy_action, log_pi, q_pi
+
     @torch.no_grad()
     def _soft_updates(self) -> None:
         """After an actor step: the soft target update over all weights at once,
         theta' += tau (theta - theta'), and the tests' average, theta_eval += (theta -
         theta_eval) / eval_ema_updates."""
-        self._target_flat.lerp_(self._target_source, self.cfg.tau)
+        if self.moves_targets:
+            self._target_flat.lerp_(self._target_source, self.cfg.tau)
         if self._eval_flat is not None:
             self._eval_flat.lerp_(self._actor_flat, self._eval_rate)
 

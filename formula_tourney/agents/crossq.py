@@ -15,8 +15,9 @@ changes that make one update per env step learn as much as many updates of SAC d
 
 All optimisers run Adam with beta1 = ``crossq_adam_beta1`` (0.5 in the paper); the temperature's
 at the critic's learning rate. Replay, windows,
-n-step sums and PER weights enter as for every family; the PER priority reads Q_1. The skeleton
-of ``core.py`` still builds a critic target copy; this family never reads it or moves it.
+n-step sums and PER weights enter as for every family; the PER priority reads Q_1. The update is
+``core.py``'s skeleton: this family supplies only its critic pass (``_critic_values``) and says
+``moves_targets = False``; the critic target copy the core builds is never read.
 """
 
 from __future__ import annotations
@@ -27,9 +28,7 @@ import torch
 from pydantic import Field
 from torch import nn
 
-from formula_tourney.agents.buffers import ReplayBatch
-from formula_tourney.agents.core import FamilySettings, FusedAdam, UpdateInfo
-from formula_tourney.agents.mlp_update import BCLoss
+from formula_tourney.agents.core import FamilySettings, FusedAdam
 from formula_tourney.agents.networks import BNTwinCritic
 from formula_tourney.agents.sac import SACAgent
 from formula_tourney.field_marks import marks
@@ -75,6 +74,7 @@ class CrossQAgent(SACAgent):
     tourney_families = ("CrossQ",)
     settings = CrossQSettings
     mlp_backend = False
+    moves_targets = False
     critic_layer_norm_applies = False  # batch-normalised critics
 
     def __init__(self, cfg: Any, obs_dim: int, action_dim: int = 3, device: str = "cpu",
@@ -95,53 +95,24 @@ class CrossQAgent(SACAgent):
         cfg = self.cfg
         return BNTwinCritic(self.obs_dim, self.action_dim, cfg.window, cfg.hidden, cfg.bn_momentum)
 
-    def update(
-        self, batch: ReplayBatch, per_buffer: Any | None = None, bc: BCLoss | None = None
-    ) -> UpdateInfo:
-        """(1c)-(3c): one critic step on the joint batch, the actor's every d-th update."""
-        cfg = self.cfg
-        b = self._tensors(batch, self._MLP_FIELDS)
+    def _critic_values(
+        self, b: dict[str, torch.Tensor], actions: torch.Tensor, step_actor: bool
+    ) -> tuple[torch.Tensor, torch.Tensor, Any, Any, Any]:
+        """(1c): one training-mode pass of the BN critics over the joint batch [(s, a);
+        (s', a')] with a' ~ pi(.|s'), so both halves share the batch statistics; the target
+        bootstraps from that pass's own Q(s', a'), detached (no target networks). Q(s, pi(s))
+        for the actor's loss uses the running statistics (eval mode)."""
         obs, next_obs = b["observations"], b["next_observations"]
         n = len(obs)
-        step_actor = (self.updates + 1) % self._policy_delay == 0
         alpha = self.log_alpha.detach().exp()
         with torch.no_grad():
             next_action, next_log_pi = self.actor.sample(next_obs, self._generator)
-        actions = b["actions"].requires_grad_(cfg.prioritized)
         self.critic.train()
         q_joint = self.critic(torch.cat([obs, next_obs]), torch.cat([actions, next_action]))
         self.critic.eval()
         q, q_next = q_joint[:, :n], q_joint[:, n:].detach()
         y = b["rewards"] + b["discounts"] * (q_next.amin(0) - alpha * next_log_pi)
-        td = y - q
-        critic_loss = (b["weights"] * td.square()).mean()
-        if cfg.prioritized:
-            (grad_a,) = torch.autograd.grad(q[0].sum(), actions, retain_graph=True)
-        self._grad_flat.zero_()
-        self.critic_objective(critic_loss).backward(inputs=self._critic_params)
-        if step_actor:
-            policy_action, log_pi = self.actor.sample(obs, self._generator)
-            q_pi = self.critic(obs, policy_action)
-            actor_loss = self.actor_loss(q_pi, log_pi)
-            if bc is not None:
-                q_bc, q_pi_bc = self.bc_values(q, q_pi)
-                actor_loss = actor_loss + self._bc_loss(policy_action, b["actions"], q_bc,
-                                                        q_pi_bc, bc)  # fmt: skip
-            actor_loss.backward(inputs=self._actor_params)
-            self._last_actor_loss = float(actor_loss.detach())
-        self.critic_opt.step()
-        if step_actor:
-            self.actor_opt.step()
-            self._after_actor_step()
-            if self._eval_flat is not None:  # the tests' average; no targets to move
-                with torch.no_grad():
-                    self._eval_flat.lerp_(self._actor_flat, self._eval_rate)
-        if cfg.prioritized and per_buffer is not None:
-            self.last_priorities = per_buffer.update_priorities(
-                batch.indices, td[0].detach().cpu().numpy(), grad_a.cpu().numpy()
-            )
-        self.updates += 1
-        return UpdateInfo(
-            critic_loss=float(critic_loss.detach()), actor_loss=self._last_actor_loss,
-            q_mean=float(q.detach().mean()), td_abs_mean=float(td.detach().abs().mean()),
-        )  # fmt: skip
+        if not step_actor:
+            return q, y, None, None, None
+        policy_action, log_pi = self._policy_action(obs)
+        return q, y, policy_action, log_pi, self.critic(obs, policy_action)
