@@ -100,12 +100,20 @@ class Sequence:
         return 0.5 * (self.high - self.low) if self.n else math.inf
 
     def as_dict(self) -> dict[str, Any]:
-        return {"n": self.n, "mean": self.mean, "cs_low": self.low, "cs_high": self.high,
-                "bound": self.bound, "threshold": self.threshold, "verdict": self.verdict}
+        return {
+            "n": self.n,
+            "mean": self.mean,
+            "cs_low": self.low,
+            "cs_high": self.high,
+            "bound": self.bound,
+            "threshold": self.threshold,
+            "verdict": self.verdict,
+        }
 
 
-def confidence_sequence(diffs: np.ndarray | list[float], bound: float, threshold: float = 0.0,
-                        alpha: float = ALPHA) -> Sequence:
+def confidence_sequence(
+    diffs: np.ndarray | list[float], bound: float, threshold: float = 0.0, alpha: float = ALPHA
+) -> Sequence:
     """The CS of the mean of ``diffs`` (in their order: the order the values came, e.g. by
     seed), each in ``[-bound, bound]`` (values beyond it are clipped to it), read at the last
     value with the running intersection, and whether it excludes ``threshold``."""
@@ -130,13 +138,18 @@ def confidence_sequence(diffs: np.ndarray | list[float], bound: float, threshold
     verdict = "open"
     if gone[at]:
         verdict = "above" if float(d.mean()) > threshold else "below"
-        low, high = (max(low, threshold), high) if verdict == "above" else (low,
-                                                                            min(high, threshold))
+        low, high = (
+            (max(low, threshold), high) if verdict == "above" else (low, min(high, threshold))
+        )
     return Sequence(int(d.size), float(d.mean()), low, high, bound, threshold, verdict)
 
 
-def paired_differences(a: np.ndarray | list[float], b: np.ndarray | list[float],
-                       a_fixed: bool = False, b_fixed: bool = False) -> np.ndarray:
+def paired_differences(
+    a: np.ndarray | list[float],
+    b: np.ndarray | list[float],
+    a_fixed: bool = False,
+    b_fixed: bool = False,
+) -> np.ndarray:
     """A - B as one sequence of independent differences: the i-th run of A (in seed order)
     less the i-th of B, as many as the shorter side has; a fixed side (a bot: one value) is
     subtracted from every run of the other. The pairing is fixed before any value is seen
