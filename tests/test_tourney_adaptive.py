@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from formula_tourney.cli import main
 from formula_tourney.errors import UserInputError
 from formula_tourney.report.claims.judge import judge
 from formula_tourney.tourney.adaptive import (
@@ -185,7 +186,18 @@ def _long_short(tmp_path: Path, adaptive: str) -> Path:
                  "30-step episodes reach a higher reward than 8-step ones")
 
 
-def test_a_clear_claim_stops_the_run_before_max_seeds(tmp_path: Path) -> None:
+def _cli_json(capsys: pytest.CaptureFixture, *args: str) -> dict:
+    """``formula-tourney ARGS --json``'s document (in this process)."""
+    capsys.readouterr()
+    try:
+        main([*args, "--json"])
+    except SystemExit as exc:
+        assert not exc.code, capsys.readouterr()
+    return json.loads(capsys.readouterr().out)
+
+
+def test_a_clear_claim_stops_the_run_before_max_seeds(tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture) -> None:
     path = _long_short(tmp_path, "min_seeds = 8\nmax_seeds = 16\nwave_seeds = 2")
     result = run_tournament(path, workers=2, results_dir=tmp_path / "res", judge=judge)
     state = result["adaptive"]
@@ -204,14 +216,10 @@ def test_a_clear_claim_stops_the_run_before_max_seeds(tmp_path: Path) -> None:
     assert saved == state
     assert result["this_run"]["done"] == 2 * n  # never max_seeds
     # status --json and the report show the decisions
-    status = subprocess.run([sys.executable, "-m", "formula_tourney.cli", "status",
-                             str(tmp_path / "res" / "seqtiny"), "--json"], cwd=REPO,
-                            capture_output=True, text=True, check=True)
-    assert json.loads(status.stdout)["adaptive"]["stopped"]["reason"] == STOP_DECIDED
-    report = subprocess.run([sys.executable, "-m", "formula_tourney.cli", "report", "-t",
-                             "seqtiny", "--results", str(tmp_path / "res"), "--json"], cwd=REPO,
-                            capture_output=True, text=True, check=True)
-    tables = json.loads(report.stdout)["tables"]
+    status = _cli_json(capsys, "status", str(tmp_path / "res" / "seqtiny"))
+    assert status["adaptive"]["stopped"]["reason"] == STOP_DECIDED
+    tables = _cli_json(capsys, "report", "-t", "seqtiny", "--results",
+                       str(tmp_path / "res"))["tables"]
     assert tables["adaptive"]["records"][0]["stopped"] == STOP_DECIDED
     (claim,) = tables["claims"]["records"]
     assert claim["sequential"] == "supported"
