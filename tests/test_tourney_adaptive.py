@@ -28,8 +28,11 @@ from formula_tourney.tourney.adaptive import (
     allocate,
 )
 from formula_tourney.tourney.api import run_tournament
+from formula_tourney.tourney.estimate.calibrate import WorkerStart, calibrate
+from formula_tourney.tourney.estimate.model import Estimate, JobCost, PartCost
 from formula_tourney.tourney.runner import FAULTS_ENV
 from formula_tourney.tourney.spec import Adaptive, parse_spec
+from formula_tourney.training.run_spec import build_run_spec
 
 REPO = Path(__file__).resolve().parents[1]
 DESIGN = Adaptive(min_seeds=5, max_seeds=8, wave_seeds=4)
@@ -282,3 +285,52 @@ def test_kill_9_in_the_middle_of_a_wave_resumes_to_the_same_seeds_and_verdicts(
     assert _verdicts(resumed["adaptive"]) == _verdicts(whole["adaptive"])
     assert resumed["adaptive"]["stopped"] == whole["adaptive"]["stopped"]
     assert resumed["adaptive"]["stopped"]["reason"] == STOP_MAX_SEEDS
+
+
+# ------------------------------------------------------------------------- cost up front
+
+
+def _priced(budget_cpu_h: float | None) -> dict:
+    """A 2-part estimate at min_seeds 2 (100 CPU-s per job, no contention, no worker start)."""
+    parts = [PartCost("p1", 0, None, [JobCost(1e4, 1e4, 4, 100.0, 0.0, 300.0)] * 4,
+                      baselines_s=[10.0]),
+             PartCost("p2", 1, "p1", [JobCost(1e4, 1e4, 4, 50.0, 0.0, 150.0)] * 2)]
+    design = Adaptive(min_seeds=2, max_seeds=6, wave_seeds=2, budget_cpu_h=budget_cpu_h)
+    return Estimate(parts, workers=1, cluster_cpus=None, worker=WorkerStart(0.0, 0.0, 0.0),
+                    contention=1.0, calibration_s=1.0, rates={}, adaptive=design).to_json()
+
+
+def test_the_adaptive_estimate_states_its_floor_expected_and_worst_case() -> None:
+    est = _priced(None)
+    ad = est["adaptive"]
+    floor = 4 * 100.0 + 10.0 + 2 * 50.0
+    assert est["total"]["cpu_s"] == pytest.approx(floor) == pytest.approx(ad["floor_cpu_s"])
+    # every entrant to 6 seeds: the training jobs x 3, the bot once
+    assert ad["worst_cpu_s"] == pytest.approx(floor + 2 * (400.0 + 100.0))
+    assert ad["expected_cpu_s"] == pytest.approx(floor + 0.5 * 2 * 500.0)
+    assert ad["worst_wall_s"] == pytest.approx(ad["worst_cpu_s"])  # one worker
+    capped = _priced(1000.0 / 3600.0)["adaptive"]  # the budget caps the worst case
+    assert capped["worst_cpu_s"] == pytest.approx(1000.0)
+    assert capped["expected_cpu_s"] == pytest.approx(floor + 0.5 * (1000.0 - floor))
+    below = _priced(100.0 / 3600.0)["adaptive"]  # the floor always runs
+    assert below["worst_cpu_s"] == pytest.approx(floor) == pytest.approx(below["expected_cpu_s"])
+
+
+def test_a_too_short_calibration_is_refused_and_a_censored_one_widens_its_range(
+    tmp_path: Path, capsys: pytest.CaptureFixture,
+) -> None:
+    path = _long_short(tmp_path, "min_seeds = 2")
+    with pytest.raises(UserInputError, match=r"^--calibrate-s 0.2 is too short to time the "
+                       r"jobs' steps and updates; use at least 0.5 s$"):
+        run_tournament(path, dry_run=True, estimate=True, calibrate_s=0.2,
+                       results_dir=tmp_path / "res")
+    with pytest.raises(SystemExit) as info:
+        main(["run", str(path), "--dry-run", "--estimate", "--calibrate-s", "0.1"])
+    assert info.value.code == 2 and len(capsys.readouterr().err.strip().splitlines()) == 1
+    plan = run_tournament(path, dry_run=True, results_dir=tmp_path / "res")
+    assert plan["adaptive"]["min_seeds"] == 2 and plan["plan"]["known_jobs"] == 4
+    long_episodes = build_run_spec(
+        variant="WIN1", overrides={"hidden": [32, 32], "batch_size": 16}, train_tracks=["oval"],
+        schedule={"episodes": 10, "max_steps": 50_000, "test_max_steps": 100}, device="cpu")
+    measured = calibrate(long_episodes, seconds=0.5)  # far fewer than 3 x 50k steps driven
+    assert measured.episode_steps_se >= (50_000 - measured.episode_steps_mean) / 1.96 - 1e-6

@@ -82,7 +82,8 @@ def register(app: typer.Typer) -> None:
             "--dry-run, else kept in the results folder for the report.",
         ),
         calibrate_s: float = typer.Option(
-            1.0, "--calibrate-s", min=0.2, help="--estimate: seconds measured per distinct job."
+            1.0, "--calibrate-s", help="--estimate: seconds measured per distinct job (at "
+            "least 0.5)."
         ),
         cluster_cpus: int | None = typer.Option(
             None, "--cluster-cpus", help="--estimate: also the wall time on a Ray cluster of "

@@ -18,6 +18,7 @@ from formula_tourney.errors import UserInputError
 from formula_tourney.results.layout import ESTIMATE_FILE
 from formula_tourney.safeio import atomic_write_json
 from formula_tourney.tourney.adaptive import AdaptiveRun, Judge
+from formula_tourney.tourney.estimate import MIN_CALIBRATE_S
 from formula_tourney.tourney.executors import Event, default_workers, make_executor
 from formula_tourney.tourney.kinds import KINDS
 from formula_tourney.tourney.lock import RunLock
@@ -93,6 +94,9 @@ def run_tournament(
         raise UserInputError(f"--retries must be >= 0, got {retries}")
     if workers is not None and workers < 1:
         raise UserInputError(f"--workers must be >= 1, got {workers}")
+    if estimate and calibrate_s < MIN_CALIBRATE_S:
+        raise UserInputError(f"--calibrate-s {calibrate_s:g} is too short to time the jobs' "
+                             f"steps and updates; use at least {MIN_CALIBRATE_S:g} s")
     if cluster_cpus is not None and cluster_cpus < 1:
         raise UserInputError(f"--cluster-cpus must be >= 1, got {cluster_cpus}")
     planner, planned, root = plan_tournament(path, results_dir, budget_cpu_h)
