@@ -142,11 +142,12 @@ class Claim(_Strict):
         "of the runs' part).")
     bound: float | None = Field(
         None, gt=0.0, allow_inf_nan=False,
-        description="The largest difference between a run of A and a run of B, in the "
-        "claim's unit, for its anytime-valid confidence sequence (claims.sequential). Default "
-        "from the data model: laps lie between the track's reference limit and the longest "
-        "lap a test can time, shares in [0, 100], CPU-s to a milestone in [0, budget]; a "
-        "reward has none: without a bound its sequence uses the range the scores span.")
+        description="For the anytime-valid confidence sequence (claims.sequential), which needs "
+        "bounded scores: faster: how many seconds above the track's reference limit a lap "
+        "counts at most (default: one limit; a slower lap and a miss count as that lap); "
+        "higher_reward: the largest difference between a run of A and one of B (default: the "
+        "range the scores span). Shares lie in [0, 100] and CPU-s to a milestone in [0, "
+        "budget] by themselves.")
     a: Group = Field(description="The group claimed to be better.")
     b: Group = Field(description="The group it is compared with.")
     track: str = Field("own", description="faster: the track lap times are read on; 'own': each "

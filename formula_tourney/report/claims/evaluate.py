@@ -301,19 +301,25 @@ def _longest_timed_lap_s(ctx: Context, job_id: str) -> float:
 def scale_of(ctx: Context, claim: Claim, runs: list[str], values: list[float],
              track: str | None) -> Scale:
     """The bounds of a comparison's scores (``evidence.Scale``), from the data model where it
-    has them: laps lie between the track's reference limit (0 without a bot's drive) and the
-    longest lap a test can time (a miss counts as that lap); finish shares in [0, 100]; the
-    CPU-s to a milestone in [0, budget] (a miss counts as the budget). A reward has no bound
-    in the data model: the claim's ``bound``, else the range the scores span (then the
-    sequence is only as valid as that range)."""
+    has them. A lap is never faster than the track's reference limit (the physics' bound,
+    ``lines.limit``, stored with the bots' drives), and counts at most ``bound`` seconds above
+    it (default: one limit, i.e. twice the limit; never more than the longest lap a test can
+    time): a slower lap, and a run without a clean lap, count as that slowest lap. Without a
+    limit (no bot drove the track) laps count in [0, the longest lap a test can time]. Finish
+    shares lie in [0, 100]; the CPU-s to a milestone in [0, budget] (a miss counts as the
+    budget). A reward has no bound in the data model: the claim's ``bound``, else the range
+    the scores span (then the sequence is only as valid as that range)."""
     if claim.kind == "faster":
         caps = [_longest_timed_lap_s(ctx, r) for r in runs if not r.startswith("bot:")]
         cap = max([c for c in caps if math.isfinite(c)], default=math.nan)
-        floor = ctx.limits.get(track or "", 0.0) if track else 0.0
-        floor = floor if math.isfinite(floor) else 0.0
-        if claim.bound is not None and math.isfinite(cap):
-            return Scale(miss=-cap, best=-cap + claim.bound)
-        return Scale(miss=-cap, best=-floor)
+        limit = ctx.limits.get(track or "", math.nan) if track else math.nan
+        if not (math.isfinite(limit) and limit > 0.0):
+            floor = 0.0
+            slowest = claim.bound if claim.bound is not None else cap
+        else:  # a lap counts at most `bound` (default: one limit) above the limit
+            floor = limit
+            slowest = min(cap, limit + (claim.bound if claim.bound is not None else limit))
+        return Scale(miss=-slowest, best=-floor)
     if claim.kind == "finishes_more":
         return Scale(miss=0.0, best=100.0)
     if claim.kind == "learns_faster":

@@ -89,9 +89,10 @@ class ClaimStats:
 
 @dataclass(frozen=True)
 class Scale:
-    """What bounds a comparison's scores, for its confidence sequence: every score lies in
-    ``[miss, best]`` (higher is better), and a run without a result (-inf) counts as ``miss``.
-    So a paired difference lies in ``[-(best - miss), best - miss]``."""
+    """What bounds a comparison's scores, for its confidence sequence: every score counts in
+    ``[miss, best]`` (higher is better; a score beyond it counts as its end), and a run without
+    a result (-inf) counts as ``miss``. So a paired difference lies in
+    ``[-(best - miss), best - miss]``."""
 
     miss: float
     best: float
@@ -111,8 +112,8 @@ def sequence_of(a: Sequence[float], b: Sequence[float], a_fixed: bool, b_fixed: 
     a, b = _arr(a), _arr(b)
     if a.size == 0 or b.size == 0 or not (math.isfinite(scale.bound) and scale.bound > 0):
         return None
-    fa = np.where(np.isneginf(a), scale.miss, a)
-    fb = np.where(np.isneginf(b), scale.miss, b)
+    fa = np.clip(np.where(np.isneginf(a), scale.miss, a), scale.miss, scale.best)
+    fb = np.clip(np.where(np.isneginf(b), scale.miss, b), scale.miss, scale.best)
     diffs = sequential.paired_differences(fa, fb, a_fixed, b_fixed)
     return sequential.confidence_sequence(diffs, scale.bound)
 
