@@ -4,7 +4,6 @@ results.competence, a miss counted as the CPU budget, and their sequential verdi
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -37,20 +36,31 @@ def ctx(tmp_path_factory: pytest.TempPathFactory) -> Context:
         folder.write_config(spec)
         tests = folder.tests()
         tests = tests.assign(cpu_s=tests["episode"] * RATE[job["entrant"]])
-        folder.write_tables(folder.episodes().to_dict("records"), tests.to_dict("records"),
-                            folder.laps().to_dict("records"))
+        folder.write_tables(
+            folder.episodes().to_dict("records"),
+            tests.to_dict("records"),
+            folder.laps().to_dict("records"),
+        )
         folder.write_summary({**folder.summary(), "track": "oval"})
     return Context.build(load_tournament(root))
 
 
 def claim(**kw) -> Claim:
-    return Claim.model_validate({"id": "cost", "statement": "s", "kind": "learns_faster",
-                                 "milestone": "first_clean_lap", **kw})
+    return Claim.model_validate(
+        {
+            "id": "cost",
+            "statement": "s",
+            "kind": "learns_faster",
+            "milestone": "first_clean_lap",
+            **kw,
+        }
+    )
 
 
 def test_cpu_seconds_to_the_first_clean_lap_by_hand(ctx: Context) -> None:
-    res = evaluate(ctx, claim(a={"part": "part1", "entrant": "win1"},
-                              b={"part": "part1", "entrant": "win4"}))
+    res = evaluate(
+        ctx, claim(a={"part": "part1", "entrant": "win1"}, b={"part": "part1", "entrant": "win4"})
+    )
     (comp,) = res.comparisons
     # win1's first clean rounds: episodes 100, 100, 200 (seed 2 had no lap at 100), 1 CPU-s
     # each; win4 laps cleanly from episode 100 in every seed, at 4 CPU-s an episode
@@ -64,8 +74,9 @@ def test_cpu_seconds_to_the_first_clean_lap_by_hand(ctx: Context) -> None:
 
 
 def test_a_missed_milestone_counts_as_the_budget(ctx: Context) -> None:
-    res = evaluate(ctx, claim(a={"part": "part1", "entrant": "win1"},
-                              b={"part": "part1", "entrant": "ms3"}))
+    res = evaluate(
+        ctx, claim(a={"part": "part1", "entrant": "win1"}, b={"part": "part1", "entrant": "ms3"})
+    )
     (comp,) = res.comparisons
     assert all(s == -math.inf for s in comp.b_scores)  # ms3 never laps without damage
     assert comp.stats.prob == 1.0 and comp.stats.verdict == "supported"
@@ -74,8 +85,9 @@ def test_a_missed_milestone_counts_as_the_budget(ctx: Context) -> None:
 
 
 def test_a_bot_milestone_needs_the_bot_in_the_part(ctx: Context) -> None:
-    res = evaluate(ctx, claim(milestone="beat_centre_bot", a={"entrant": "win1"},
-                              b={"entrant": "win4"}))
+    res = evaluate(
+        ctx, claim(milestone="beat_centre_bot", a={"entrant": "win1"}, b={"entrant": "win4"})
+    )
     assert res.verdict == "no data"  # part1 raced no follower on the centre line
 
 
@@ -88,8 +100,9 @@ def test_the_sequential_verdict_on_synthetic_competence_data() -> None:
     assert st.sequential == "supported" and st.sequence is not None
     assert st.sequence.low > 0.0 and st.sequence.n == 20
     same = -rng.uniform(80.0, 400.0, 24)
-    st = compare_scores(same[:12], same[12:],
-                        sequence=sequence_of(same[:12], same[12:], False, False, scale))
+    st = compare_scores(
+        same[:12], same[12:], sequence=sequence_of(same[:12], same[12:], False, False, scale)
+    )
     assert st.sequential == "inconclusive"
     reverse = sequence_of(slow, fast, False, False, scale)
     assert reverse is not None and reverse.verdict == "below"
@@ -97,10 +110,19 @@ def test_the_sequential_verdict_on_synthetic_competence_data() -> None:
 
 def test_the_schema_of_a_cost_claim() -> None:
     with pytest.raises(ValidationError, match="needs a milestone"):
-        Claim.model_validate({"id": "c", "statement": "s", "kind": "learns_faster",
-                              "a": {}, "b": {}})
+        Claim.model_validate(
+            {"id": "c", "statement": "s", "kind": "learns_faster", "a": {}, "b": {}}
+        )
     with pytest.raises(ValidationError, match="needs that kind"):
-        Claim.model_validate({"id": "c", "statement": "s", "kind": "faster",
-                              "milestone": "first_clean_lap", "a": {}, "b": {}})
+        Claim.model_validate(
+            {
+                "id": "c",
+                "statement": "s",
+                "kind": "faster",
+                "milestone": "first_clean_lap",
+                "a": {},
+                "b": {},
+            }
+        )
     with pytest.raises(ValidationError, match="faster"):
         claim(a={}, b={"bot": "follower"})

@@ -107,8 +107,11 @@ class ClaimLook:
     looks: tuple[Look, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
-        return {"claim": self.claim, "verdict": self.verdict,
-                "comparisons": [x.to_json() for x in self.looks]}
+        return {
+            "claim": self.claim,
+            "verdict": self.verdict,
+            "comparisons": [x.to_json() for x in self.looks],
+        }
 
 
 Judge = Callable[[Path], list[ClaimLook]]
@@ -128,8 +131,12 @@ class Wave:
     """Parts an undecided comparison could still give seeds to (not settled)."""
 
 
-def _side_pick(targets: tuple[tuple[str, str], ...], seeds: dict[tuple[str, str], int],
-               design: Adaptive, closed: set[str]) -> tuple[str, str] | None:
+def _side_pick(
+    targets: tuple[tuple[str, str], ...],
+    seeds: dict[tuple[str, str], int],
+    design: Adaptive,
+    closed: set[str],
+) -> tuple[str, str] | None:
     """The entrant of a side that gets its next run: the one with the fewest seeds below
     max_seeds in an open part (ties by name); None if none can."""
     ok = [t for t in sorted(targets) if t[0] not in closed
@@ -145,9 +152,14 @@ def _needs(look: Look, n_a: int, n_b: int) -> list[str]:
     return ["a"] if n_a < n_b else ["b"] if n_b < n_a else ["a", "b"]
 
 
-def allocate(claims: list[ClaimLook], seeds: dict[tuple[str, str], int],
-             cost_s: Callable[[tuple[str, str]], float], design: Adaptive,
-             budget_left_s: float, closed: set[str]) -> Wave:
+def allocate(
+    claims: list[ClaimLook],
+    seeds: dict[tuple[str, str], int],
+    cost_s: Callable[[tuple[str, str]], float],
+    design: Adaptive,
+    budget_left_s: float,
+    closed: set[str],
+) -> Wave:
     """The next wave (see the module's docstring for the rule); ``seeds``: each entrant's
     seeds now; ``cost_s``: an entrant's CPU-seconds per run; ``closed``: parts that take no
     more seeds."""
@@ -160,8 +172,13 @@ def allocate(claims: list[ClaimLook], seeds: dict[tuple[str, str], int],
         wave.reason = STOP_NO_RUNS if undecided else STOP_DECIDED
         return wave
     for k, look in enumerate(looks):
-        state[k] = {"n_a": look.n_a, "n_b": look.n_b, "pairs": look.pairs,
-                    "h": look.half_width, "short": look.shortfall()}
+        state[k] = {
+            "n_a": look.n_a,
+            "n_b": look.n_b,
+            "pairs": look.pairs,
+            "h": look.half_width,
+            "short": look.shortfall(),
+        }
     tentative = dict(seeds)
     over_budget = False
     while sum(wave.added.values()) < design.wave_seeds:
@@ -170,8 +187,9 @@ def allocate(claims: list[ClaimLook], seeds: dict[tuple[str, str], int],
             st = state[k]
             picks = []
             for side in _needs(look, int(st["n_a"]), int(st["n_b"])):
-                pick = _side_pick(look.a_targets if side == "a" else look.b_targets,
-                                  tentative, design, closed)
+                pick = _side_pick(
+                    look.a_targets if side == "a" else look.b_targets, tentative, design, closed
+                )
                 if pick is None:
                     break
                 picks.append(pick)
@@ -198,9 +216,15 @@ def allocate(claims: list[ClaimLook], seeds: dict[tuple[str, str], int],
             wave.added[t] = wave.added.get(t, 0) + 1
             st["n_a" if t in look.a_targets else "n_b"] += 1
         wave.cpu_s += cost
-        wave.picks.append({"claim": look.claim, "comparison": look.label,
-                           "runs": [target_key(*t) for t in picks],
-                           "value_per_cpu_s": value, "cpu_s": cost})
+        wave.picks.append(
+            {
+                "claim": look.claim,
+                "comparison": look.label,
+                "runs": [target_key(*t) for t in picks],
+                "value_per_cpu_s": value,
+                "cpu_s": cost,
+            }
+        )
     for look in looks:
         for t in (*look.a_targets, *look.b_targets):
             if t[0] not in closed and tentative.get(t, design.min_seeds) < design.max_seeds:
@@ -229,14 +253,20 @@ class AdaptiveRun:
         self.root = Path(root)
         self.path = self.root / ADAPTIVE_FILE
         self.judge = judge
-        self.state: dict[str, Any] = {"design": self.design.model_dump(), "waves": [],
-                                      "settled": [], "stopped": None}
+        self.state: dict[str, Any] = {
+            "design": self.design.model_dump(),
+            "waves": [],
+            "settled": [],
+            "stopped": None,
+        }
         if self.path.is_file():
             try:
                 self.state = json.loads(self.path.read_text(encoding="utf-8"))
             except (OSError, ValueError) as err:
-                raise UserInputError(f"{self.path}: unreadable ({err}); move it aside to "
-                                     "start the sequential run's decisions afresh") from None
+                raise UserInputError(
+                    f"{self.path}: unreadable ({err}); move it aside to "
+                    "start the sequential run's decisions afresh"
+                ) from None
         self.state["design"] = self.design.model_dump()
         seeds = self.state["waves"][-1]["seeds"] if self.state["waves"] else {}
         planner.entrant_seeds = {_target(k): int(v) for k, v in seeds.items()}
@@ -292,12 +322,14 @@ class AdaptiveRun:
         if self.stopped:
             return [], self.state["stopped"]["reason"]
         claims = self.judge(self.root)
-        budget_s = (self.design.budget_cpu_h * 3600.0 if self.design.budget_cpu_h is not None
-                    else math.inf)
+        budget_s = (
+            self.design.budget_cpu_h * 3600.0 if self.design.budget_cpu_h is not None else math.inf
+        )
         spent = self.spent_s(store)
         closed = closed | set(self.state["settled"])
-        wave = allocate(claims, self._seeds(), self.costs(store), self.design,
-                        budget_s - spent, closed)
+        wave = allocate(
+            claims, self._seeds(), self.costs(store), self.design, budget_s - spent, closed
+        )
         seeds = self._seeds()
         for target, n in wave.added.items():
             seeds[target] = seeds.get(target, self.design.min_seeds) + n
@@ -320,7 +352,8 @@ class AdaptiveRun:
         """Nothing is left to run: record why the run stopped and release every part."""
         last = self.state["waves"][-1] if self.state["waves"] else {}
         self.state["stopped"] = {
-            "reason": reason or STOP_DECIDED, "waves": len(self.state["waves"]),
+            "reason": reason or STOP_DECIDED,
+            "waves": len(self.state["waves"]),
             "claims": {c["claim"]: c["verdict"] for c in last.get("claims", [])},
         }
         self.state["settled"] = sorted(self.trains)

@@ -48,8 +48,11 @@ def _look(ctx: Context, claim_id: str, comp: Comparison) -> Look:
 
 def claim_look(ctx: Context, result: ClaimResult) -> ClaimLook:
     """One evaluated claim as the sequential run reads it."""
-    return ClaimLook(result.claim.id, result.sequential,
-                     tuple(_look(ctx, result.claim.id, c) for c in result.comparisons))
+    return ClaimLook(
+        result.claim.id,
+        result.sequential,
+        tuple(_look(ctx, result.claim.id, c) for c in result.comparisons),
+    )
 
 
 def judge(root: Path) -> list[ClaimLook]:

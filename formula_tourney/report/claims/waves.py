@@ -37,14 +37,16 @@ def waves_table(root: str | Path) -> ReportTable:
     waves = state["waves"] if state else []
     metrics = [f"wave {w['wave']}" for w in waves]
     table = ReportTable(
-        key="adaptive", title="Sequential run: each claim's verdict after every wave",
+        key="adaptive",
+        title="Sequential run: each claim's verdict after every wave",
         caption=(
             "A sequential run ([adaptive]) read its claims after every wave of seeds with "
             "their anytime-valid confidence sequences (claims.sequential) and gave the next "
             "seeds to the undecided ones (tourney.adaptive); a decided claim asked for no "
             "more. Each cell: the claim's sequential verdict as read after that wave."
         ),
-        groups=[GROUP] if waves else [], metrics={GROUP: metrics} if waves else {},
+        groups=[GROUP] if waves else [],
+        metrics={GROUP: metrics} if waves else {},
     )
     table.lap_metrics = set()
     if not state or not waves:
@@ -61,13 +63,21 @@ def waves_table(root: str | Path) -> ReportTable:
     table.notes.append(
         f"design: min_seeds {design.get('min_seeds')}, max_seeds {design.get('max_seeds')}, "
         f"wave_seeds {design.get('wave_seeds')}, budget "
-        + (f"{design['budget_cpu_h']:g} CPU-h" if design.get("budget_cpu_h") else "none"))
-    table.notes.append(f"stopped: {stopped.get('reason', 'not yet (the run goes on)')}; "
-                       f"{last.get('spent_cpu_s', 0.0) / 3600.0:.3f} CPU-h spent by the last "
-                       "wave's reading")
+        + (f"{design['budget_cpu_h']:g} CPU-h" if design.get("budget_cpu_h") else "none")
+    )
+    table.notes.append(
+        f"stopped: {stopped.get('reason', 'not yet (the run goes on)')}; "
+        f"{last.get('spent_cpu_s', 0.0) / 3600.0:.3f} CPU-h spent by the last "
+        "wave's reading"
+    )
     table.notes.append("seeds: " + ", ".join(f"{k} {v}" for k, v in last["seeds"].items()))
-    table.records.append({"stopped": stopped.get("reason"), "waves": len(waves),
-                          "design": design, "seeds": last["seeds"],
-                          "claims": stopped.get("claims") or {
-                              c["claim"]: c["verdict"] for c in last["claims"]}})
+    table.records.append(
+        {
+            "stopped": stopped.get("reason"),
+            "waves": len(waves),
+            "design": design,
+            "seeds": last["seeds"],
+            "claims": stopped.get("claims") or {c["claim"]: c["verdict"] for c in last["claims"]},
+        }
+    )
     return table
