@@ -117,6 +117,11 @@ def register(app: typer.Typer) -> None:
             message(f"moved the old index to {result['index_moved_to']}; rebuilt it from the "
                     "job folders")
         emit(result, as_json, lambda console: render_results(console, result))
+        stopped = (result.get("adaptive") or {}).get("stopped")
+        if stopped and not as_json:
+            verdicts = ", ".join(f"{k} {v}" for k, v in stopped["claims"].items())
+            message(f"sequential run stopped after {stopped['waves']} wave(s): "
+                    f"{stopped['reason']}" + (f" ({verdicts})" if verdicts else ""))
         if not dry_run:
             raise typer.Exit(failures_exit(result))
 

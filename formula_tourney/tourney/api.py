@@ -121,10 +121,12 @@ def run_tournament(
             atomic_write_json(root / ESTIMATE_FILE, cost)
         store = Store(root)
         moved = store.move_aside() if rebuild_index else None
+        waves = AdaptiveRun(planner, root, judge) if judge and planner.spec.adaptive else None
+        if waves is not None:
+            planned = planner.plan()  # with the seeds earlier waves added
         if store.exists():
             store.check()
             _check_unchanged(store, planner, planned, retry_failed)
-        waves = AdaptiveRun(planner, root, judge) if judge and planner.spec.adaptive else None
         scheduler = Scheduler(planner, planned, store, retries, retry_failed, on_event,
                               progress, waves)
         started = time.perf_counter()

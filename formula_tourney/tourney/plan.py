@@ -321,7 +321,7 @@ class Planner:
         total_jobs = 0
         for item in planned:
             part = item.part
-            seeds = spec.settings(part)["seeds"] or 1
+            seeds = self.seeds(part, "")  # a sequential run: min_seeds, its start
             source: dict[str, Any]
             if item.variants is not None:
                 source = {"entrants": item.variants}
