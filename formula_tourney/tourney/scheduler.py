@@ -242,11 +242,13 @@ class Scheduler:
                 self._materialise(self.parts[name])
             self.counts["skipped"] = skipped
             self._close_finished_parts()
-            if not (self.queue or self.running):
+            if self.queue or self.running:
+                self._drain(pool)
+            elif not added:  # nothing to run and no seeds to add: the run stops here
                 self.waves.finish(reason)
                 self._close_finished_parts()
                 break
-            self._drain(pool)
+            # else the new seeds' folders already held their results: read the claims again
 
     def _closed_parts(self) -> set[str]:
         """Parts that take no more seeds: closed, failed, or not planned yet."""
