@@ -163,7 +163,7 @@ def test_claims_file_errors_name_file_line_and_allowed(tmp_path: Path) -> None:
     path.write_text('[[claim]]\nid = "x"\nstatement = "s"\nkind = "slower"\n'
                     'a = {}\nb = { bot = "follower" }\n')
     with pytest.raises(UserInputError, match=rf"{path}:4: claim\[0\].kind: Input should be "
-                       "'faster', 'finishes_more' or 'higher_reward'"):
+                       "'faster', 'finishes_more', 'higher_reward' or 'learns_faster'"):
         load_claims_file(path)
     path.write_text('include = ["papr"]\n')
     with pytest.raises(UserInputError, match="unknown claim set 'papr'; allowed values: paper"):

@@ -29,7 +29,10 @@ SETS_DIR = Path(__file__).resolve().parent
 SHIPPED_SETS: tuple[str, ...] = tuple(sorted(p.stem for p in SETS_DIR.glob("*.toml")))
 """Names a ``include`` may list: the shipped sets (``paper``: the paper's six findings)."""
 
-Kind = Literal["faster", "finishes_more", "higher_reward"]
+Kind = Literal["faster", "finishes_more", "higher_reward", "learns_faster"]
+Milestone = Literal["first_clean_lap", "beat_centre_bot", "beat_mincurv_bot"]
+"""What a learns_faster claim times (``results.competence.MILESTONES``): the first clean lap,
+beating the follower on the centre line, beating it on the min-curvature line."""
 SplitBy = Literal["none", "family", "variant", "entrant"]
 PairKey = Literal["part", "variant", "reference", "lac", "train_track"]
 PoolKey = Literal["variant", "line", "train_track", "setup"]
@@ -129,8 +132,22 @@ class Claim(_Strict):
     statement: str = Field(description="The finding in words, as the report prints it.")
     source: str = Field("", description="Where the finding comes from (e.g. paper finding 2).")
     kind: Kind = Field(description="Measure: faster (best clean lap, lower is better), "
-                       "finishes_more (share of unseen test tracks lapped cleanly) or "
-                       "higher_reward (highest moving average of the training reward).")
+                       "finishes_more (share of unseen test tracks lapped cleanly), "
+                       "higher_reward (highest moving average of the training reward) or "
+                       "learns_faster (fewer CPU-seconds of training to the milestone; a "
+                       "run that misses it counts as its CPU budget).")
+    milestone: Milestone | None = Field(
+        None, description="learns_faster: the milestone timed: first_clean_lap, "
+        "beat_centre_bot or beat_mincurv_bot (the follower on that line, raced as a baseline "
+        "of the runs' part).")
+    bound: float | None = Field(
+        None, gt=0.0, allow_inf_nan=False,
+        description="For the anytime-valid confidence sequence (claims.sequential), which needs "
+        "bounded scores: faster: how many seconds above the track's reference limit a lap "
+        "counts at most (default: one limit; a slower lap and a miss count as that lap); "
+        "higher_reward: the largest difference between a run of A and one of B (default: the "
+        "range the scores span). Shares lie in [0, 100] and CPU-s to a milestone in [0, "
+        "budget] by themselves.")
     a: Group = Field(description="The group claimed to be better.")
     b: Group = Field(description="The group it is compared with.")
     track: str = Field("own", description="faster: the track lap times are read on; 'own': each "
@@ -170,6 +187,12 @@ class Claim(_Strict):
                              "sides (allowed with a bot: faster)")
         if self.b.is_bot and self.split_b != "none":
             raise ValueError("split_b needs runs in b, not a bot")
+        if (self.kind == "learns_faster") != (self.milestone is not None):
+            raise ValueError("kind = \"learns_faster\" needs a milestone (first_clean_lap, "
+                             "beat_centre_bot, beat_mincurv_bot), and a milestone needs that kind")
+        if self.kind == "learns_faster" and self.track != "own":
+            raise ValueError("a milestone is timed on each run's own train track: leave track "
+                             "at 'own'")
         if self.per_track and self.track != "own":
             raise ValueError("per_track compares on each A run's own train track: leave track "
                              "at 'own'")

@@ -41,6 +41,14 @@ def render_estimate(console: Console, est: dict[str, Any]) -> None:
                   f"({hours(tot['wall_s_low'])}-{hours(tot['wall_s_high'])})"
                   + (f"; on a Ray cluster of {tot['cluster_cpus']} CPUs: "
                      f"{hours(tot['cluster_wall_s'])}" if tot.get("cluster_cpus") else ""))
+    if est.get("adaptive"):
+        ad = est["adaptive"]
+        budget = f", budget {ad['budget_cpu_h']:g} CPU-h" if ad.get("budget_cpu_h") else ""
+        console.print(f"sequential run ({ad['min_seeds']}-{ad['max_seeds']} seeds, waves of "
+                      f"{ad['wave_seeds']}{budget}): the total above is its floor; expected "
+                      f"{hours(ad['expected_cpu_s'])} CPU ({hours(ad['expected_wall_s'])} wall), "
+                      f"worst case {hours(ad['worst_cpu_s'])} CPU ({hours(ad['worst_wall_s'])} "
+                      "wall)", markup=False)
     worker = est["worker"]
     console.print(f"  {est['model']}; measured in {est['calibration_s']:.0f} s: a worker "
                   f"starts in {worker['start_s']:.1f} s, its first job costs "

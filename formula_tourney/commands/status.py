@@ -14,6 +14,7 @@ from rich.table import Table
 
 from formula_tourney.commands.estimate_view import hours
 from formula_tourney.commands.output import emit
+from formula_tourney.report.claims.waves import read_waves
 from formula_tourney.results.status import STATES, TournamentStatus, tournament_status
 
 
@@ -48,6 +49,17 @@ def render_status(console: Console, st: TournamentStatus) -> None:
                   highlight=False)
 
 
+def render_waves(console: Console, state: dict) -> None:
+    """A sequential run's last reading: each claim's verdict, the seeds, and why it stopped."""
+    last = state["waves"][-1] if state["waves"] else {}
+    stopped = state.get("stopped")
+    console.print(f"sequential run: {len(state['waves'])} wave(s); "
+                  + (f"stopped: {stopped['reason']}" if stopped else "not stopped yet"),
+                  markup=False, highlight=False)
+    for claim in last.get("claims", []):
+        console.print(f"  {claim['claim']}: {claim['verdict']}", markup=False, highlight=False)
+
+
 def register(app: typer.Typer) -> None:
     @app.command()
     def status(
@@ -60,4 +72,11 @@ def register(app: typer.Typer) -> None:
         Reads the index read-only, so it is safe while the tournament's run is writing.
         """
         st = tournament_status(folder)
-        emit(st.model_dump(), as_json, lambda console: render_status(console, st))
+        waves = read_waves(folder)
+
+        def show(console: Console) -> None:
+            render_status(console, st)
+            if waves is not None:
+                render_waves(console, waves)
+
+        emit({**st.model_dump(), "adaptive": waves}, as_json, show)

@@ -82,16 +82,25 @@ def register(app: typer.Typer) -> None:
             "--dry-run, else kept in the results folder for the report.",
         ),
         calibrate_s: float = typer.Option(
-            1.0, "--calibrate-s", min=0.2, help="--estimate: seconds measured per distinct job."
+            1.0, "--calibrate-s", help="--estimate: seconds measured per distinct job (at "
+            "least 0.5)."
         ),
         cluster_cpus: int | None = typer.Option(
             None, "--cluster-cpus", help="--estimate: also the wall time on a Ray cluster of "
             "this many CPUs."
         ),
+        budget_cpu_h: float | None = typer.Option(
+            None, "--budget-cpu-h", help="Run sequentially: seeds added in waves where the "
+            "claims are undecided, until they are decided, this many CPU-hours are spent or "
+            "max_seeds is reached (the file's [adaptive] table, or its defaults; "
+            "docs/claims.md).",
+        ),
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
     ) -> None:
         """Run a tournament (again: resume it). Jobs are entrant x seed x part."""
-        from formula_tourney.tourney.api import run_tournament  # agents, sim: not for --help
+        # agents, sim and the report's readers: not for --help
+        from formula_tourney.report.claims.judge import judge
+        from formula_tourney.tourney.api import run_tournament
 
         check_output_path(results, "--results", folder=True)
         try:
@@ -100,7 +109,7 @@ def register(app: typer.Typer) -> None:
                 results_dir=results, dry_run=dry_run, retry_failed=retry_failed,
                 rebuild_index=rebuild_index, progress=None if dry_run else ProgressView(),
                 estimate=estimate, calibrate_s=calibrate_s, cluster_cpus=cluster_cpus,
-                report=message,
+                report=message, budget_cpu_h=budget_cpu_h, judge=judge,
             )
         except KeyboardInterrupt:
             raise interrupted() from None
@@ -108,6 +117,11 @@ def register(app: typer.Typer) -> None:
             message(f"moved the old index to {result['index_moved_to']}; rebuilt it from the "
                     "job folders")
         emit(result, as_json, lambda console: render_results(console, result))
+        stopped = (result.get("adaptive") or {}).get("stopped")
+        if stopped and not as_json:
+            verdicts = ", ".join(f"{k} {v}" for k, v in stopped["claims"].items())
+            message(f"sequential run stopped after {stopped['waves']} wave(s): "
+                    f"{stopped['reason']}" + (f" ({verdicts})" if verdicts else ""))
         if not dry_run:
             raise typer.Exit(failures_exit(result))
 

@@ -19,6 +19,7 @@ from formula_tourney.report.claims.evaluate import evaluate_all
 from formula_tourney.report.claims.figures import make_claim_figures
 from formula_tourney.report.claims.sources import resolve_claims
 from formula_tourney.report.claims.table import claims_table
+from formula_tourney.report.claims.waves import waves_table
 from formula_tourney.report.competence_table import competence_table
 from formula_tourney.report.cost import cost_table
 from formula_tourney.report.grip_table import grip_table
@@ -140,6 +141,9 @@ def build_report(tournament: str | None = None, results_dir: str | Path = "resul
     claim_results = evaluate_all(ctx, declared[0]) if declared is not None else []
     if declared is not None:
         tables.append(claims_table(claim_results, declared[1]))
+    waves = waves_table(root)
+    if not waves.empty:  # only a sequential run ([adaptive]) has one
+        tables.append(waves)
     races = load_race_parts(root, part, data.problems)  # race parts' series (<part>/_races/)
     tables.extend(race_table(item) for item in races)
     if not data.jobs.empty:

@@ -33,7 +33,7 @@ CLEAN_STARTS = "clean starts"
 COMPETENCE_METRICS = [*METRICS.values(), RATIO, CLEAN_STARTS]
 
 
-def _bots(baselines: pd.DataFrame, part: str, track: str) -> competence.Bots | None:
+def part_bots(baselines: pd.DataFrame, part: str, track: str) -> competence.Bots | None:
     """The follower's laps on the two lines of ``track`` in ``part``, or None when one is
     missing (not driven yet, or no clean lap)."""
     if baselines.empty:
@@ -64,7 +64,7 @@ def _budgeted_runs(ctx: Context) -> dict[str, dict[str, Any]]:
         folder = JobFolder(data.job_dir(job_id))
         try:
             track = str(folder.summary()["track"])  # the key track, where milestones count
-            bots = _bots(data.baselines, str(job["part"]), track)
+            bots = part_bots(data.baselines, str(job["part"]), track)
             if bots is None or not competence.timed(folder.tests()):
                 continue
             run = competence.job_competence(folder, track, bots)

@@ -5,6 +5,7 @@ Layout::
     <tournament>/index.sqlite                          the index (written by the parent only)
     <tournament>/.lock                                 held by the running ``run``
     <tournament>/estimate.json                         the cost estimate of ``run --estimate``
+    <tournament>/adaptive.json                         a sequential run's waves and decisions
     <tournament>/<part>/<entrant>/seed-<n>/            one training job (a job folder)
     <tournament>/<part>/_baselines/<bot>-<ref>-<track>/  one baseline drive
     <tournament>/<part>/_races/                        a race part's (or `race --races`) races
@@ -38,6 +39,9 @@ LAST_CHECKPOINT = "last.pt"
 
 INDEX_FILE = "index.sqlite"
 ESTIMATE_FILE = "estimate.json"
+ADAPTIVE_FILE = "adaptive.json"
+"""A sequential run's design, its waves (seeds per entrant, the claims as read) and why it
+stopped (``tourney.adaptive``)."""
 """The cost estimate ``run --estimate`` measured before the tournament's first run (kept on
 resume), which the report sets against the measured cost."""
 LOCK_FILE = ".lock"

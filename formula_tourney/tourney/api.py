@@ -17,12 +17,14 @@ from typing import Any
 from formula_tourney.errors import UserInputError
 from formula_tourney.results.layout import ESTIMATE_FILE
 from formula_tourney.safeio import atomic_write_json
+from formula_tourney.tourney.adaptive import AdaptiveRun, Judge
+from formula_tourney.tourney.estimate import MIN_CALIBRATE_S
 from formula_tourney.tourney.executors import Event, default_workers, make_executor
 from formula_tourney.tourney.kinds import KINDS
 from formula_tourney.tourney.lock import RunLock
 from formula_tourney.tourney.plan import PlannedPart, Planner
 from formula_tourney.tourney.scheduler import RunProgress, Scheduler
-from formula_tourney.tourney.spec import error_at, load_spec
+from formula_tourney.tourney.spec import Adaptive, error_at, load_spec
 from formula_tourney.tourney.store import Store
 from formula_tourney.tourney.summary import collect_results
 
@@ -30,16 +32,25 @@ DEFAULT_RESULTS = Path("results")
 
 
 def plan_tournament(
-    path: str | Path, results_dir: str | Path | None = None
+    path: str | Path, results_dir: str | Path | None = None,
+    budget_cpu_h: float | None = None,
 ) -> tuple[Planner, list[PlannedPart], Path]:
     """Load and validate a tournament file and plan it; writes nothing.
 
     Every job's run specification that can exist is built here (promoted parts with every
     variant they could receive), so any bad value raises UserInputError with ``file:line``.
-    Returns the planner, the planned parts and the tournament's results folder.
+    ``budget_cpu_h`` makes the run sequential (``tourney.adaptive``): the file's
+    ``[adaptive]`` table with this budget, or the default design. Returns the planner, the
+    planned parts and the tournament's results folder.
     """
     path = Path(path)
     spec, text = load_spec(path)
+    if budget_cpu_h is not None:
+        if not (budget_cpu_h > 0 and budget_cpu_h < float("inf")):
+            raise UserInputError(f"--budget-cpu-h must be a number > 0, got {budget_cpu_h}")
+        design = spec.adaptive or Adaptive()
+        spec = spec.model_copy(update={"adaptive": design.model_copy(
+            update={"budget_cpu_h": float(budget_cpu_h)})})
     root = Path(results_dir if results_dir is not None else DEFAULT_RESULTS) / spec.name
     planner = Planner(spec, path, text, root.resolve())
     planner.validate()
@@ -62,6 +73,8 @@ def run_tournament(
     calibrate_s: float = 1.0,
     cluster_cpus: int | None = None,
     report: Callable[[str], None] | None = None,
+    budget_cpu_h: float | None = None,
+    judge: Judge | None = None,
 ) -> dict[str, Any]:
     """Run (or resume) the tournament in ``path``; return the results as plain data.
 
@@ -74,14 +87,21 @@ def run_tournament(
     cost estimate (``tourney.estimate``; ``cluster_cpus``: also for a Ray cluster that size):
     to the dry run's result, or, for a run, to ``estimate.json`` in the results folder when the
     tournament has none yet (a resume keeps the first). ``report`` hears its progress lines.
+    A sequential run (``[adaptive]`` or ``budget_cpu_h``) reads its claims with ``judge``
+    after every wave (``report.claims.judge.judge``; the tournament layer reads no report).
     """
     if retries < 0:
         raise UserInputError(f"--retries must be >= 0, got {retries}")
     if workers is not None and workers < 1:
         raise UserInputError(f"--workers must be >= 1, got {workers}")
+    if estimate and calibrate_s < MIN_CALIBRATE_S:
+        raise UserInputError(f"--calibrate-s {calibrate_s:g} is too short to time the jobs' "
+                             f"steps and updates; use at least {MIN_CALIBRATE_S:g} s")
     if cluster_cpus is not None and cluster_cpus < 1:
         raise UserInputError(f"--cluster-cpus must be >= 1, got {cluster_cpus}")
-    planner, planned, root = plan_tournament(path, results_dir)
+    planner, planned, root = plan_tournament(path, results_dir, budget_cpu_h)
+    if planner.spec.adaptive is not None and judge is None and not dry_run:
+        raise ValueError("a sequential run ([adaptive]) needs a judge to read its claims")
     slots = workers or default_workers()
     cost = None
     if estimate and (dry_run or not (root / ESTIMATE_FILE).is_file()):
@@ -92,6 +112,8 @@ def run_tournament(
         cost = estimate_plan(planner, planned, slots, cluster_cpus, calibrate_s, report).to_json()
     if dry_run:
         out = {"dry_run": True, "results": str(root), "plan": planner.describe(planned)}
+        if planner.spec.adaptive is not None:
+            out["adaptive"] = planner.spec.adaptive.model_dump()
         return out if cost is None else {**out, "estimate": cost}
     pool = make_executor(executor, slots, address)
     with RunLock(root):
@@ -99,11 +121,14 @@ def run_tournament(
             atomic_write_json(root / ESTIMATE_FILE, cost)
         store = Store(root)
         moved = store.move_aside() if rebuild_index else None
+        waves = AdaptiveRun(planner, root, judge) if judge and planner.spec.adaptive else None
+        if waves is not None:
+            planned = planner.plan()  # with the seeds earlier waves added
         if store.exists():
             store.check()
             _check_unchanged(store, planner, planned, retry_failed)
         scheduler = Scheduler(planner, planned, store, retries, retry_failed, on_event,
-                              progress)
+                              progress, waves)
         started = time.perf_counter()
         try:
             if progress is not None:
@@ -119,6 +144,8 @@ def run_tournament(
                 progress.stop()
         result = collect_results(store, planner.spec.name, planned)
         store.close()
+    if waves is not None:
+        result["adaptive"] = waves.state
     result.update(wall_s=time.perf_counter() - started, workers=pool.workers, executor=executor,
                   this_run=scheduler.counts, lost=scheduler.lost,
                   index_moved_to=str(moved) if moved else None)

@@ -142,6 +142,16 @@ class Planner:
         """Relative track paths in the file resolve against the file's folder."""
         self._tracks: dict[int, tuple[tuple[str, ...], tuple[str, ...]]] = {}
         self._specs: dict[tuple[int, str, int], RunSpec] = {}
+        self.entrant_seeds: dict[tuple[str, str], int] | None = None
+        """Seeds per (part, entrant) in a sequential run (``tourney.adaptive`` sets it; an
+        entrant not in it has ``[adaptive] min_seeds``); None: every part its ``seeds``."""
+
+    def seeds(self, part: Part, entrant: str) -> int:
+        """How many seeds (jobs) an entrant of a part runs now."""
+        if self.spec.adaptive is not None:
+            return (self.entrant_seeds or {}).get((part.name, entrant),
+                                                  self.spec.adaptive.min_seeds)
+        return self.spec.settings(part)["seeds"] or 1
 
     # ------------------------------------------------------------------ run specifications
     def tracks(self, index: int) -> tuple[tuple[str, ...], tuple[str, ...]]:
@@ -226,13 +236,12 @@ class Planner:
             # A race part trains nothing: promotion names its entrants, whose models then race
             # in the part's one race job (tourney.race_part.race_job, made by the scheduler).
             return []
-        seeds = self.spec.settings(part)["seeds"] or 1
         out = []
         for variant in variants:
             _base, family, _ = resolve_variant(self.spec, variant)
             for setup_index, setup in enumerate(part.setups):
                 entrant = entrant_name(variant, setup)
-                for seed in range(seeds):
+                for seed in range(self.seeds(part, entrant)):
                     run = self.run_spec(index, variant, setup_index, seed)
                     rel = job_rel_path(part.name, entrant, seed)
                     out.append(Job(
@@ -312,7 +321,7 @@ class Planner:
         total_jobs = 0
         for item in planned:
             part = item.part
-            seeds = spec.settings(part)["seeds"] or 1
+            seeds = self.seeds(part, "")  # a sequential run: min_seeds, its start
             source: dict[str, Any]
             if item.variants is not None:
                 source = {"entrants": item.variants}

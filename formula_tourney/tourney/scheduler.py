@@ -10,7 +10,10 @@ then computed again. The scheduler knows no job kind by name: each kind's object
 its finished result, reads that result into the index, and says what a resumed run does with a
 done job whose files are gone (``JobKind.lost_files``). A training run, a baseline drive and a
 race series (a race part's one job, made once its source part promotes) go through the same
-loop. Progress reaches whoever shows it through :class:`RunProgress`.
+loop. Progress reaches whoever shows it through :class:`RunProgress`. A sequential run
+(``tourney.adaptive.AdaptiveRun``) adds waves: when every queued job has ended, it reads the
+claims and gives the entrants of the undecided ones more seeds, and holds a part open until it
+is settled.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from formula_tourney.results.folder import CorruptResultError
+from formula_tourney.tourney.adaptive import AdaptiveRun
 from formula_tourney.tourney.executors import Event, Executor
 from formula_tourney.tourney.jobs import Job
 from formula_tourney.tourney.kinds import KINDS, TRAIN, CannotRun, JobKind, kind_of
@@ -65,8 +69,10 @@ class Scheduler:
         retry_failed: bool = False,
         on_event: Callable[[Event], None] | None = None,
         progress: RunProgress | None = None,
+        waves: AdaptiveRun | None = None,
     ) -> None:
         self.planner = planner
+        self.waves = waves
         self.spec = planner.spec
         self.store = store
         self.retries = retries
@@ -224,9 +230,33 @@ class Scheduler:
 
     # -------------------------------------------------------------- main loop
     def run(self, pool: Executor) -> None:
-        """Run until no job is queued or running (KeyboardInterrupt goes to the caller)."""
+        """Run until no job is queued or running and, in a sequential run, no wave is added
+        (KeyboardInterrupt goes to the caller)."""
         self._open()
         self._close_finished_parts()
+        self._drain(pool)
+        while self.waves is not None:
+            added, reason = self.waves.next_wave(self.store, self._closed_parts())
+            skipped = self.counts["skipped"]
+            for name in added:  # the same jobs again, and the new seeds' jobs
+                self._materialise(self.parts[name])
+            self.counts["skipped"] = skipped
+            self._close_finished_parts()
+            if self.queue or self.running:
+                self._drain(pool)
+            elif not added:  # nothing to run and no seeds to add: the run stops here
+                self.waves.finish(reason)
+                self._close_finished_parts()
+                break
+            # else the new seeds' folders already held their results: read the claims again
+
+    def _closed_parts(self) -> set[str]:
+        """Parts that take no more seeds: closed, failed, or not planned yet."""
+        return {n for n, s in self.parts.items()
+                if s.status in ("done", "failed") or s.variants is None}
+
+    def _drain(self, pool: Executor) -> None:
+        """Submit and record jobs until none is queued or running."""
         while self.queue or self.running:
             while self.queue and pool.free_slots() > 0:
                 job = self.queue.pop(0)
@@ -319,6 +349,8 @@ class Scheduler:
                         state.status = "running"
                         self.store.set_part(name, status="running")
                     continue
+                if self.waves is not None and self.waves.holds(name):
+                    continue  # a sequential run may still add seeds here
                 self._finish_part(state)
                 changed = True
 

@@ -35,6 +35,7 @@ from formula_tourney.errors import UserInputError
 from formula_tourney.lines.kinds import LINE_LABELS, ReferenceKind
 from formula_tourney.race.settings import RaceSettings
 from formula_tourney.results.layout import (
+    ADAPTIVE_FILE,
     BASELINE_DIR,
     ESTIMATE_FILE,
     INDEX_FILE,
@@ -75,7 +76,7 @@ def default_family(variant: str) -> str:
 
 
 RESERVED_NAMES: tuple[str, ...] = (INDEX_FILE, ESTIMATE_FILE, LOCK_FILE, OPTUNA_DIR,
-                                   BASELINE_DIR, RACES_DIR)
+                                   BASELINE_DIR, RACES_DIR, ADAPTIVE_FILE)
 """Names the results folder of a tournament uses itself (``results.layout``): a part named so
 would be a folder where a file lives. Names starting with one are refused too (the index's
 ``index.sqlite.corrupt``, ``index.sqlite-journal``)."""
@@ -364,6 +365,37 @@ class Part(JobSettings):
         return list(self.test_tracks) if self.test_tracks else list(self.train_tracks)
 
 
+# ------------------------------------------------------------------------ sequential runs
+
+
+class Adaptive(_Strict):
+    """A sequential run (``[adaptive]``; ``tourney.adaptive``): every training part starts at
+    ``min_seeds`` per entrant; after each wave the claims are read again with their
+    anytime-valid confidence sequences, and the next wave's seeds go to the entrants of the
+    undecided claims, where one more run buys the most decision per CPU-second. The run ends
+    when every claim is decided, the budget is spent, or the undecided claims' entrants are at
+    ``max_seeds``. A part's own ``seeds`` is not used."""
+
+    min_seeds: int = Field(3, ge=2, le=1000, strict=True,
+                           description="Seeds every entrant of a training part starts with.")
+    max_seeds: int = Field(20, ge=2, le=1000, strict=True,
+                           description="Most seeds an entrant gets.")
+    wave_seeds: int = Field(4, ge=1, le=1000, strict=True,
+                            description="New runs (jobs) one wave adds in all; the claims are "
+                            "read again after each wave (match it to the workers).")
+    budget_cpu_h: float | None = Field(
+        None, gt=0.0, allow_inf_nan=False,
+        description="CPU-hours (summed job seconds) the seeds beyond min_seeds may bring the "
+        "run to; a wave that would pass it is not started. `run --budget-cpu-h` sets it too.")
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Adaptive:
+        if self.max_seeds < self.min_seeds:
+            raise ValueError(f"max_seeds ({self.max_seeds}) must be >= min_seeds "
+                             f"({self.min_seeds})")
+        return self
+
+
 class Tournament(_Strict):
     """A whole tournament file: variants, default settings and the ordered parts of its studies."""
 
@@ -383,7 +415,12 @@ class Tournament(_Strict):
     claims: ClaimSet | None = Field(
         None,
         description="Findings the report checks: include = [\"paper\"] and [[claims.claim]] "
-        "tables (claims.schema; docs/claims.md). Not used by the run itself.",
+        "tables (claims.schema; docs/claims.md). A sequential run ([adaptive]) reads "
+        "them after every wave; otherwise the run does not use them.",
+    )
+    adaptive: Adaptive | None = Field(
+        None, description="Run sequentially: seeds added in waves where the claims are "
+        "undecided (docs/claims.md, \"Sequential runs\").",
     )
 
     @field_validator("name")

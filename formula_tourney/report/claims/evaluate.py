@@ -18,7 +18,10 @@ differ) trains the same agent step for step: it is one sample, not two, so each 
 first of the runs sharing a ``results.identity.training_digest`` and B drops any run A has.
 
 Scores are "higher is better": a lap time enters negated, so every effect is positive when A is
-better (for laps: B's mean best lap minus A's, in seconds).
+better (for laps: B's mean best lap minus A's, in seconds; for milestones: B's mean CPU-seconds
+to it minus A's). Each side's scores are in seed order, and every comparison has its
+:class:`~formula_tourney.report.claims.evidence.Scale` (the bounds of a score, from the data
+model), so that it also gets its anytime-valid sequential verdict (``claims.sequential``).
 """
 
 from __future__ import annotations
@@ -34,7 +37,8 @@ import pandas as pd
 from formula_tourney.claims.schema import Claim, Group
 from formula_tourney.report.claims import evidence
 from formula_tourney.report.claims.entrants import Entrant, entrants, first_train_track
-from formula_tourney.report.claims.evidence import ClaimStats
+from formula_tourney.report.claims.evidence import ClaimStats, Scale
+from formula_tourney.report.claims.milestones import milestone_budget_s, milestone_score
 from formula_tourney.report.paper_tables import Context, bot_result
 from formula_tourney.report.plots import moving_average
 from formula_tourney.results.identity import training_digest
@@ -44,7 +48,8 @@ PAPER_PRESET = "paper"
 REPEATED = ("run(s) repeating another run's training (same seed and settings, other tests) "
             "counted once")
 
-UNITS = {"faster": "s", "finishes_more": "% of unseen tracks", "higher_reward": "reward"}
+UNITS = {"faster": "s", "finishes_more": "% of unseen tracks", "higher_reward": "reward",
+         "learns_faster": "CPU-s"}
 """Unit of each kind's effect (laps: seconds of mean best lap; finishes: percentage points)."""
 
 
@@ -80,11 +85,16 @@ class ClaimResult:
     def unit(self) -> str:
         return UNITS[self.claim.kind]
 
+    @property
+    def sequential(self) -> str:
+        """The claim's anytime-valid verdict: its comparisons' sequential verdicts combined."""
+        return evidence.overall([c.stats.sequential for c in self.comparisons])
+
     def to_json(self) -> dict[str, Any]:
         c = self.claim
         return {"id": c.id, "statement": c.statement, "source": c.source, "kind": c.kind,
                 "unit": self.unit, "a": c.a.describe(), "b": c.b.describe(),
-                "verdict": self.verdict, "notes": self.notes,
+                "verdict": self.verdict, "sequential": self.sequential, "notes": self.notes,
                 "comparisons": [x.to_json() for x in self.comparisons]}
 
 
@@ -245,6 +255,8 @@ def scores(ctx: Context, claim: Claim, jobs: pd.DataFrame, track: str | None
         job_id = str(job["job_id"])
         if claim.kind == "faster":
             value = lap_score(ctx, job_id, track or first_train_track(job))
+        elif claim.kind == "learns_faster":
+            value = milestone_score(ctx, job, str(claim.milestone))
         elif claim.kind == "finishes_more":
             value = unseen_finish_score(ctx, job)
         else:
@@ -269,6 +281,59 @@ def _side(ctx: Context, claim: Claim, group: Group, jobs: pd.DataFrame | None,
     return ids, values, False
 
 
+def seed_ordered(ctx: Context, ids: list[str], values: list[float]
+                 ) -> tuple[list[str], list[float]]:
+    """The runs in seed order (the order a sequential run adds them; ties in job order), so
+    that the i-th run of A meets the i-th of B in the paired differences."""
+    seeds = dict(zip(ctx.jobs["job_id"].astype(str), ctx.jobs["seed"], strict=True))
+    order = sorted(range(len(ids)), key=lambda k: (int(seeds.get(ids[k], 0) or 0), k))
+    return [ids[k] for k in order], [values[k] for k in order]
+
+
+def _longest_timed_lap_s(ctx: Context, job_id: str) -> float:
+    """The longest lap a run's test can time: its test step limit times the control period."""
+    spec = ctx.data.configs.get(job_id) or {}
+    steps = (spec.get("schedule") or {}).get("test_max_steps")
+    period = (spec.get("env") or {}).get("control_period_s")
+    return float(steps) * float(period) if steps and period else math.nan
+
+
+def scale_of(ctx: Context, claim: Claim, runs: list[str], values: list[float],
+             track: str | None) -> Scale:
+    """The bounds of a comparison's scores (``evidence.Scale``), from the data model where it
+    has them. A lap is never faster than the track's reference limit (the physics' bound,
+    ``lines.limit``, stored with the bots' drives), and counts at most ``bound`` seconds above
+    it (default: one limit, i.e. twice the limit; never more than the longest lap a test can
+    time): a slower lap, and a run without a clean lap, count as that slowest lap. Without a
+    limit (no bot drove the track) laps count in [0, the longest lap a test can time]. Finish
+    shares lie in [0, 100]; the CPU-s to a milestone in [0, budget] (a miss counts as the
+    budget). A reward has no bound in the data model: the claim's ``bound``, else the range
+    the scores span (then the sequence is only as valid as that range)."""
+    if claim.kind == "faster":
+        caps = [_longest_timed_lap_s(ctx, r) for r in runs if not r.startswith("bot:")]
+        cap = max([c for c in caps if math.isfinite(c)], default=math.nan)
+        limit = ctx.limits.get(track or "", math.nan) if track else math.nan
+        if not (math.isfinite(limit) and limit > 0.0):
+            floor = 0.0
+            slowest = claim.bound if claim.bound is not None else cap
+        else:  # a lap counts at most `bound` (default: one limit) above the limit
+            floor = limit
+            slowest = min(cap, limit + (claim.bound if claim.bound is not None else limit))
+        return Scale(miss=-slowest, best=-floor)
+    if claim.kind == "finishes_more":
+        return Scale(miss=0.0, best=100.0)
+    if claim.kind == "learns_faster":
+        budgets = [milestone_budget_s(ctx, r) for r in runs]
+        budget = max([b for b in budgets if math.isfinite(b)], default=math.nan)
+        return Scale(miss=-budget, best=0.0)
+    finite = [v for v in values if math.isfinite(v)]
+    if claim.bound is not None:
+        low = min(finite, default=0.0)
+        return Scale(miss=low, best=low + claim.bound)
+    low, high = min(finite, default=0.0), max(finite, default=0.0)
+    return Scale(miss=low, best=high if high > low else low + 1.0)
+
+
 def _compare(ctx: Context, claim: Claim, label: str, a_jobs: pd.DataFrame | None,
              b_jobs: pd.DataFrame | None, track: str | None) -> Comparison:
     notes = []
@@ -283,7 +348,10 @@ def _compare(ctx: Context, claim: Claim, label: str, a_jobs: pd.DataFrame | None
         b_ids, b_vals, dropped = distinct_runs(ctx, b_ids, b_vals, taken)
         if dropped:
             notes.append(f"B: {dropped} {REPEATED}")
-    st = evidence.compare_scores(a_vals, b_vals, a_fixed, b_fixed)
+    scale = scale_of(ctx, claim, [*a_ids, *b_ids], [*a_vals, *b_vals], track)
+    seq = evidence.sequence_of(seed_ordered(ctx, a_ids, a_vals)[1],
+                               seed_ordered(ctx, b_ids, b_vals)[1], a_fixed, b_fixed, scale)
+    st = evidence.compare_scores(a_vals, b_vals, a_fixed, b_fixed, sequence=seq)
     missing = [name for name, ids in (("A", a_ids), ("B", b_ids)) if not ids]
     if missing:
         where = f" on {track}" if track else ""

@@ -17,6 +17,14 @@ Verdict: *supported* when the effect's CI lies above 0, *contradicted* when it l
 *inconclusive* otherwise; where the effect cannot be computed (a side without a finite score)
 the CI of the probability of improvement decides against 0.5 instead. *no data*: a side has no
 runs at all.
+
+That verdict is valid for a sample size fixed in advance. A sequential run (``[adaptive]``)
+looks after every wave of seeds and stops when a claim is decided, so each comparison also gets
+an anytime-valid *sequential* verdict (``claims.sequential``): the hedged capital confidence
+sequence of the paired differences A - B (the i-th run of A by seed against the i-th of B; a
+bot subtracted from every run), with a miss counted as the worst bounded value (``Scale``:
+a run without a clean lap as the longest lap a test can time, a missed milestone as the CPU
+budget). It is supported / contradicted when the sequence lies above / below 0.
 """
 
 from __future__ import annotations
@@ -29,6 +37,7 @@ from typing import Any
 import numpy as np
 from scipy import stats as sps
 
+from formula_tourney.claims import sequential
 from formula_tourney.report import stats
 
 SUPPORTED = "supported"
@@ -61,13 +70,52 @@ class ClaimStats:
     finite_b: int
     seeds_needed: int | None
     verdict: str
+    sequence: sequential.Sequence | None = None
+    """The anytime-valid confidence sequence of the paired differences (None: no scale)."""
+    sequential: str = NO_DATA
+    """The verdict of :attr:`sequence`: what a sequential run decides on."""
 
     def as_dict(self) -> dict[str, Any]:
+        seq = self.sequence
         return {"effect": self.effect, "effect_low": self.effect_low,
                 "effect_high": self.effect_high, "prob_improvement": self.prob,
                 "prob_low": self.prob_low, "prob_high": self.prob_high, "n_a": self.n_a,
                 "n_b": self.n_b, "finite_a": self.finite_a, "finite_b": self.finite_b,
-                "seeds_needed": self.seeds_needed, "verdict": self.verdict}
+                "seeds_needed": self.seeds_needed, "verdict": self.verdict,
+                "sequential": self.sequential, "pairs": seq.n if seq else 0,
+                "cs_low": seq.low if seq else math.nan, "cs_high": seq.high if seq else math.nan,
+                "bound": seq.bound if seq else math.nan}
+
+
+@dataclass(frozen=True)
+class Scale:
+    """What bounds a comparison's scores, for its confidence sequence: every score counts in
+    ``[miss, best]`` (higher is better; a score beyond it counts as its end), and a run without
+    a result (-inf) counts as ``miss``. So a paired difference lies in
+    ``[-(best - miss), best - miss]``."""
+
+    miss: float
+    best: float
+
+    @property
+    def bound(self) -> float:
+        return float(self.best - self.miss)
+
+
+SEQUENTIAL = {"above": SUPPORTED, "below": CONTRADICTED, "open": INCONCLUSIVE, "empty": NO_DATA}
+
+
+def sequence_of(a: Sequence[float], b: Sequence[float], a_fixed: bool, b_fixed: bool,
+                scale: Scale) -> sequential.Sequence | None:
+    """The confidence sequence of A - B (scores in seed order; -inf counts as the miss, nan
+    is no value); None without runs on a side or without a finite bound."""
+    a, b = _arr(a), _arr(b)
+    if a.size == 0 or b.size == 0 or not (math.isfinite(scale.bound) and scale.bound > 0):
+        return None
+    fa = np.clip(np.where(np.isneginf(a), scale.miss, a), scale.miss, scale.best)
+    fb = np.clip(np.where(np.isneginf(b), scale.miss, b), scale.miss, scale.best)
+    diffs = sequential.paired_differences(fa, fb, a_fixed, b_fixed)
+    return sequential.confidence_sequence(diffs, scale.bound)
 
 
 def _arr(values: Sequence[float] | np.ndarray) -> np.ndarray:
@@ -177,20 +225,26 @@ def decide(effect: stats.Interval, prob: stats.Interval) -> str:
 def compare_scores(a: Sequence[float] | np.ndarray, b: Sequence[float] | np.ndarray,
                    a_fixed: bool = False, b_fixed: bool = False,
                    seed: int = stats.DEFAULT_SEED,
-                   n_resamples: int = stats.DEFAULT_RESAMPLES) -> ClaimStats:
+                   n_resamples: int = stats.DEFAULT_RESAMPLES,
+                   sequence: sequential.Sequence | None = None) -> ClaimStats:
     """Every number of one comparison of A's scores with B's (higher is better; -inf = a run
-    without a result, nan = no value and ignored)."""
+    without a result, nan = no value and ignored); ``sequence``: the comparison's confidence
+    sequence (:func:`sequence_of` on the scores in seed order), whose verdict is the
+    sequential one."""
     xa, xb = _arr(a), _arr(b)
     if a_fixed and xa.size > 1 or b_fixed and xb.size > 1:
         raise ValueError("a fixed side holds one value")
     eff = effect_interval(xa, xb, a_fixed, b_fixed, seed, n_resamples)
     prob = prob_improvement(xa, xb, a_fixed, b_fixed, seed, n_resamples)
     verdict = NO_DATA if xa.size == 0 or xb.size == 0 else decide(eff, prob)
+    seq = sequence if xa.size and xb.size else None
     return ClaimStats(
         effect=eff.value, effect_low=eff.low, effect_high=eff.high, prob=prob.value,
         prob_low=prob.low, prob_high=prob.high, n_a=int(xa.size), n_b=int(xb.size),
         finite_a=int(np.isfinite(xa).sum()), finite_b=int(np.isfinite(xb).sum()),
         seeds_needed=seeds_needed(xa, xb, eff.value, a_fixed, b_fixed), verdict=verdict,
+        sequence=seq, sequential=SEQUENTIAL[seq.verdict] if seq is not None else
+        (NO_DATA if verdict == NO_DATA else INCONCLUSIVE),
     )  # fmt: skip
 
 

@@ -13,10 +13,12 @@ from formula_tourney.report.claims.evaluate import ClaimResult
 from formula_tourney.report.table_model import DASH, ReportTable
 
 GROUP = "claims"
-METRICS = ["verdict", "effect", "95% CI", "P(A better)", "P 95% CI", "runs A/B", "seeds"]
+METRICS = ["verdict", "effect", "95% CI", "P(A better)", "P 95% CI", "runs A/B", "seeds",
+           "sequential", "95% CS"]
 """Columns: the verdict, A's advantage in the claim's unit with its CI, the probability that a
-run of A beats a run of B with its CI, the runs compared, and the seeds per group a clear
-answer needs at the observed spread."""
+run of A beats a run of B with its CI, the runs compared, the seeds per group a clear answer
+needs at the observed spread, and the anytime-valid verdict with its confidence sequence (the
+one a sequential run decides on)."""
 
 
 def _num(value: float, digits: int = 2, sign: bool = True) -> str:
@@ -38,12 +40,16 @@ def claims_table(results: list[ClaimResult], origin: str) -> ReportTable:
         caption=(
             f"Claims from {origin}. effect: A's advantage over B (lap claims: B's mean best "
             "clean lap minus A's, s; finish claims: percentage points of unseen tracks lapped "
-            "cleanly; reward claims: highest moving-average training reward), 95% percentile "
+            "cleanly; reward claims: highest moving-average training reward; milestone claims: "
+            "CPU-seconds of training to it), 95% percentile "
             "bootstrap CI over runs; P(A better): probability that a run of A beats a run of B "
             "(a run without a clean lap loses), 95% bootstrap CI; runs A/B: runs with a value "
             "(bots count 1); seeds: runs per group for a 5% two-sided test with 80% power at "
             "the observed spread. supported / contradicted: the effect's CI excludes 0; "
-            "inconclusive: it does not at this sample size."
+            "inconclusive: it does not at this sample size. sequential, 95% CS: the "
+            "anytime-valid confidence sequence of the paired differences (claims.sequential: "
+            "valid however often it is read, so the verdict of a run that adds seeds until it "
+            "decides; a miss counts as the worst bounded value) and its verdict."
         ),
         groups=[GROUP] if results else [], metrics={GROUP: list(METRICS)} if results else {},
     )
@@ -72,6 +78,9 @@ def claims_table(results: list[ClaimResult], origin: str) -> ReportTable:
                 "P 95% CI": _ci(st.prob_low, st.prob_high).replace("+", ""),
                 "runs A/B": f"{st.n_a}/{st.n_b}",
                 "seeds": str(st.seeds_needed) if st.seeds_needed is not None else DASH,
+                "sequential": st.sequential,
+                "95% CS": (_ci(st.sequence.low, st.sequence.high, digits)
+                           if st.sequence is not None and st.sequence.n else DASH),
             }
             values = {"effect": st.effect, "95% CI": math.nan, "P(A better)": st.prob}
             for metric in METRICS:
@@ -83,6 +92,7 @@ def claims_table(results: list[ClaimResult], origin: str) -> ReportTable:
             f"{res.claim.id} ({res.verdict}): {res.claim.statement}. A = {res.claim.a.describe()};"
             f" B = {res.claim.b.describe()}" + (f". {why}" if why else "")
             + (f" [{res.claim.source}]" if res.claim.source else "")
+            + f" (sequential verdict: {res.sequential})"
         )
         table.records.append(res.to_json())
     return table

@@ -163,6 +163,12 @@ def worker_start(spec: RunSpec, workers: int = 1) -> tuple[WorkerStart, float]:
     return alone, float(np.mean([t for t, _ in together])) / total
 
 
+CENSORED_EPISODES = 3
+"""A measurement that drove fewer than this many max-length episodes' steps saw only the short
+episodes end: its episode length's range is widened to max_steps."""
+Z95_STEPS = 1.96
+
+
 def calibrate(spec: RunSpec, seconds: float = 1.0, chunk_steps: int = 100,
               chunk_updates: int = 10) -> Rates:
     """Time ``spec``'s env steps, updates and a test for about ``seconds`` in all."""
@@ -228,14 +234,21 @@ def calibrate(spec: RunSpec, seconds: float = 1.0, chunk_steps: int = 100,
     env.close()
     test_env.close()
 
+    driven = sum(n for _, n in step_chunks)
     if not lengths:  # no episode ended: they are at least as long as what was driven
-        lengths = [min(spec.schedule.max_steps, sum(n for _, n in step_chunks))]
+        lengths = [min(spec.schedule.max_steps, driven)]
     arr = np.minimum(np.asarray(lengths, dtype=float), spec.schedule.max_steps)
+    mean_steps = float(arr.mean())
+    se_steps = (float(arr.std(ddof=1) / math.sqrt(arr.size)) if arr.size > 1
+                else mean_steps * 0.5)
+    if driven < CENSORED_EPISODES * spec.schedule.max_steps:
+        # too few steps driven for a full-length episode to end often: the episodes seen are
+        # the short ones, so the range reaches up to max_steps (it does not shrink with a
+        # short measurement, it widens)
+        se_steps = max(se_steps, (spec.schedule.max_steps - mean_steps) / Z95_STEPS)
     return Rates(
         setup_s=setup_s, env_step=_measured(step_chunks), update=_measured(update_chunks),
         test_episode_s=test_s, test_step_s=test_s / max(1, drive.steps),
-        checkpoint_s=checkpoint_s, episode_steps_mean=float(arr.mean()),
-        episode_steps_se=float(arr.std(ddof=1) / math.sqrt(arr.size)) if arr.size > 1 else
-        float(arr.mean()) * 0.5,
+        checkpoint_s=checkpoint_s, episode_steps_mean=mean_steps, episode_steps_se=se_steps,
         episodes_seen=int(arr.size),
     )  # fmt: skip

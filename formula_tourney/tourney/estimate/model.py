@@ -25,6 +25,16 @@ cheapest to the ``k`` dearest.
 Wall time replays the scheduler (``tourney.scheduler``): earlier parts first and long jobs
 first within them, a promoted part once its source closed, one job per worker slot, each
 worker paying its imports once; a Ray cluster of N CPUs is N slots plus ``RAY_INIT_S``.
+
+A sequential run (``[adaptive]``, ``tourney.adaptive``) is priced at ``min_seeds`` per entrant
+(the floor: every part runs it), and :func:`adaptive_cost` adds what its waves may add: the
+worst case is every entrant of every training part at ``max_seeds`` (each part's training
+jobs scaled by ``max_seeds / min_seeds``, from the high end of their range), but no more than
+the budget allows (a wave that would pass it is not started; the floor always runs); the
+expected cost is the floor plus half the room up to that worst case, the design's midpoint:
+before the run no effect size is known, and a claim decided at the first look adds nothing
+while one never decided takes its entrants to ``max_seeds``. Wall time scales with the CPU
+time (waves wait for their slowest job: the barrier is not priced).
 """
 
 from __future__ import annotations
@@ -36,6 +46,7 @@ from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 from formula_tourney.tourney.estimate.calibrate import Rates, WorkerStart
+from formula_tourney.tourney.spec import Adaptive
 from formula_tourney.training.run_spec import RunSpec
 
 RAY_INIT_S = 13.5
@@ -219,6 +230,8 @@ class Estimate:
     """Measured slow-down of a worker when the run's workers share this machine's cores."""
     calibration_s: float
     rates: dict[str, dict[str, Any]]
+    adaptive: Adaptive | None = None
+    """A sequential run's design: the parts are priced at min_seeds, plus its waves."""
 
     def to_json(self) -> dict[str, Any]:
         per_worker = self.worker.start_s + self.worker.first_job_s - self.worker.next_job_s
@@ -258,6 +271,9 @@ class Estimate:
                      "after learning starts; tests at the untrained actor's length; cpu_s_max: "
                      "every episode and test to its step limit",
         }  # fmt: skip
+        if self.adaptive is not None:
+            out["adaptive"] = adaptive_cost(self.parts, rows, self.adaptive, self.contention,
+                                            out["total"])
         if self.cluster_cpus:
             out["total"]["cluster_cpus"] = self.cluster_cpus
             out["total"]["cluster_wall_s"] = simulate_wall(
@@ -278,3 +294,39 @@ def rate_key(spec: RunSpec) -> str:
 
 def as_dict(rates: Rates) -> dict[str, Any]:
     return asdict(rates)
+
+
+def adaptive_cost(parts: list[PartCost], rows: list[dict[str, Any]], design: Adaptive,
+                  contention: float, total: dict[str, Any]) -> dict[str, Any]:
+    """The CPU and wall time of a sequential run: its floor (every entrant at min_seeds: the
+    estimate's total), worst case and expected case (the module's docstring)."""
+    scale = (design.max_seeds - design.min_seeds) / design.min_seeds
+    floor, floor_high = float(total["cpu_s"]), float(total["cpu_s_high"])
+    extra = extra_high = 0.0
+    for part, row in zip(parts, rows, strict=True):
+        train = sum(j.cpu_s for j in part.jobs) * contention
+        if train <= 0.0:
+            continue
+        extra += train * scale
+        # the part's range, its baselines left out, scaled like its jobs
+        share = train / max(row["cpu_s"], 1e-9)
+        extra_high += row["cpu_s_high"] * share * scale
+    unbudgeted = floor + extra
+    unbudgeted_high = floor_high + extra_high
+    budget_s = design.budget_cpu_h * 3600.0 if design.budget_cpu_h is not None else math.inf
+    worst = max(floor_high, min(unbudgeted_high, budget_s))
+    expected = floor + 0.5 * (min(unbudgeted, max(budget_s, floor)) - floor)
+    wall = float(total["wall_s"])
+    per_cpu = wall / floor if floor > 0 else 0.0
+    return {
+        "min_seeds": design.min_seeds, "max_seeds": design.max_seeds,
+        "wave_seeds": design.wave_seeds, "budget_cpu_h": design.budget_cpu_h,
+        "floor_cpu_s": floor, "floor_cpu_h": floor / 3600.0,
+        "expected_cpu_s": expected, "expected_cpu_h": expected / 3600.0,
+        "worst_cpu_s": worst, "worst_cpu_h": worst / 3600.0,
+        "worst_unbudgeted_cpu_s": unbudgeted_high,
+        "expected_wall_s": expected * per_cpu, "worst_wall_s": worst * per_cpu,
+        "model": "floor: every entrant at min_seeds; worst: every training part at max_seeds "
+                 "(high end of its range), at most the budget; expected: the floor plus half "
+                 "the room to the worst case (no effect size is known before the run)",
+    }  # fmt: skip

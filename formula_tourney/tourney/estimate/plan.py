@@ -82,7 +82,7 @@ def estimate_plan(planner: Planner, planned: list[PlannedPart], workers: int,
     for item in planned:
         part = item.part
         pc = PartCost(part.name, item.position, part.promoted_from)
-        seeds = planner.spec.settings(part)["seeds"] or 1
+        seeds = planner.seeds(part, "")  # a sequential run: every entrant at min_seeds
         if item.variants is not None:
             for variant in item.variants:
                 for s_index in range(len(part.setups)):
@@ -113,4 +113,4 @@ def estimate_plan(planner: Planner, planned: list[PlannedPart], workers: int,
         parts.append(pc)
     return Estimate(parts=parts, workers=workers, cluster_cpus=cluster_cpus,
                     worker=start, contention=contention, calibration_s=time.perf_counter() - began,
-                    rates=rates_out)
+                    rates=rates_out, adaptive=planner.spec.adaptive)

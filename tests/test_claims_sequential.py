@@ -1,0 +1,103 @@
+"""The anytime-valid confidence sequence (claims.sequential): its error under repeated looks, the
+naive fixed-sample interval's inflation under the same looks, and its power under a real effect."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from formula_tourney.claims.sequential import (
+    confidence_sequence,
+    paired_differences,
+    rejected,
+)
+
+BOUND = 10.0
+RUNS = 1000
+MIN_SEEDS, WAVE, MAX_SEEDS = 3, 2, 31
+LOOKS = np.arange(MIN_SEEDS, MAX_SEEDS + 1, WAVE)
+"""A sequential design: min_seeds, then a wave of 2 seeds at a time, read after every wave."""
+
+
+def _differences(effect: float, seed: int) -> np.ndarray:
+    """RUNS sequential runs of MAX_SEEDS paired differences A - B (lap-like, sd 2 each side),
+    capped at the bound as a miss is."""
+    rng = np.random.default_rng(seed)
+    a = rng.normal(0.0, 2.0, (RUNS, MAX_SEEDS))
+    b = rng.normal(-effect, 2.0, (RUNS, MAX_SEEDS))
+    return np.clip(a - b, -BOUND, BOUND)
+
+
+def _sequential_decides(d: np.ndarray) -> np.ndarray:
+    """Whether each run ends supported or contradicted when its CS is read after every wave."""
+    x = (d + BOUND) / (2 * BOUND)
+    gone = rejected(x, 0.5)[..., 0]
+    return gone[:, LOOKS - 1].any(axis=1)
+
+
+def _naive_decides(d: np.ndarray) -> np.ndarray:
+    """The same looks with a fixed-sample 95 % t interval (what a report read after every wave
+    would do without a sequential design)."""
+    out = np.zeros(d.shape[0], dtype=bool)
+    for n in LOOKS:
+        mean = d[:, :n].mean(axis=1)
+        half = stats.t.ppf(0.975, n - 1) * d[:, :n].std(axis=1, ddof=1) / math.sqrt(n)
+        out |= (mean - half > 0) | (mean + half < 0)
+    return out
+
+
+def _bootstrap_decides(d: np.ndarray, resamples: int = 400) -> np.ndarray:
+    """The same looks with a percentile bootstrap CI of the mean (the report's fixed-sample
+    interval)."""
+    rng = np.random.default_rng(3)
+    out = np.zeros(d.shape[0], dtype=bool)
+    for n in LOOKS:
+        idx = rng.integers(0, n, size=(resamples, n))
+        means = d[:, :n][:, idx].mean(axis=2)
+        low, high = np.quantile(means, [0.025, 0.975], axis=1)
+        out |= (low > 0) | (high < 0)
+    return out
+
+
+def test_error_under_the_null_stays_below_alpha_and_the_naive_interval_inflates() -> None:
+    d = _differences(0.0, seed=11)
+    sequential = _sequential_decides(d).mean()
+    naive_t = _naive_decides(d).mean()
+    naive_boot = _bootstrap_decides(d[:300]).mean()
+    assert sequential <= 0.05
+    assert naive_t > 0.15 and naive_t > 3 * max(sequential, 0.05)
+    assert naive_boot > 0.15
+
+
+def test_a_real_effect_is_decided_in_most_runs() -> None:
+    d = _differences(3.0, seed=12)  # 1.5 sd of a side: what a clear finding looks like
+    assert _sequential_decides(d).mean() > 0.7
+
+
+def test_confidence_sequence_reads_the_verdict_and_covers_the_mean() -> None:
+    rng = np.random.default_rng(5)
+    clear = confidence_sequence(rng.normal(4.0, 1.0, 25), BOUND)
+    assert clear.verdict == "above" and 0.0 < clear.low < 4.0 < clear.high
+    worse = confidence_sequence(rng.normal(-4.0, 1.0, 25), BOUND)
+    assert worse.verdict == "below" and worse.high < 0.0
+    unclear = confidence_sequence(rng.normal(0.2, 2.0, 6), BOUND)
+    assert unclear.verdict == "open" and unclear.low < 0.0 < unclear.high
+    assert confidence_sequence([], BOUND).verdict == "empty"
+    with pytest.raises(ValueError, match="bound"):
+        confidence_sequence([1.0], math.inf)
+
+
+def test_the_cs_shrinks_and_its_order_matters_only_through_the_running_intersection() -> None:
+    rng = np.random.default_rng(9)
+    values = rng.normal(1.0, 2.0, 40)
+    widths = [confidence_sequence(values[:n], BOUND).half_width for n in (5, 10, 20, 40)]
+    assert widths == sorted(widths, reverse=True) and widths[-1] < widths[0] / 2
+
+
+def test_paired_differences_pair_by_seed_order_and_subtract_a_bot() -> None:
+    assert paired_differences([3.0, 4.0, 5.0], [1.0, 1.0]).tolist() == [2.0, 3.0]
+    assert paired_differences([3.0, 4.0], [2.5], b_fixed=True).tolist() == [0.5, 1.5]
+    assert paired_differences([2.0], [1.0, 3.0], a_fixed=True).tolist() == [1.0, -1.0]
