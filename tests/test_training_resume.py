@@ -8,9 +8,11 @@ that abandons a run in this process (only the files survive, as after a kill), o
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import signal
+import sqlite3
 import subprocess
 import sys
 import textwrap
@@ -26,6 +28,8 @@ from formula_tourney.agents.family_entrant import FamilyEntrant
 from formula_tourney.errors import UserInputError
 from formula_tourney.results.folder import JobFolder
 from formula_tourney.results.layout import JOB_TABLES
+from formula_tourney.tourney.api import run_tournament
+from formula_tourney.tourney.store import Store
 from formula_tourney.training import loop
 from formula_tourney.training.resume import PREEMPTED, Preempted
 from formula_tourney.training.run_spec import RunSpec, build_run_spec
@@ -53,11 +57,11 @@ def _tables(job: Path) -> dict[str, pd.DataFrame]:
             for name in JOB_TABLES}  # fmt: skip
 
 
-def _assert_same_run(a: Path, b: Path) -> None:
+def _assert_same_run(a: Path, b: Path, episodes: int = 6) -> None:
     ta, tb = _tables(a), _tables(b)
     for name in JOB_TABLES:
         pd.testing.assert_frame_equal(ta[name], tb[name], check_exact=True)
-    assert len(ta["episodes"]) == 6 and ta["episodes"]["updates"].iloc[-1] > 50
+    assert len(ta["episodes"]) == episodes and ta["episodes"]["updates"].iloc[-1] > 50
     assert not JobFolder(b).resume_path.exists()  # a finished job deletes it
 
 
@@ -216,3 +220,78 @@ def test_a_readable_resume_file_that_does_not_fit_is_refused(
     state["entrant"]["noises"] = []  # a damaged state behind a matching hash
     with pytest.raises(UserInputError, match="resume file .*resume.pt does not fit this run"):
         loop.train(spec, job, resume=state)
+
+
+def _worker_pid(index: Path, job_id: str) -> int:
+    """The pid of the worker running ``job_id`` (the index has it once the job started)."""
+    for _ in range(500):
+        with contextlib.suppress(sqlite3.OperationalError):  # the parent may be writing
+            db = sqlite3.connect(index)
+            pid = db.execute("SELECT worker_pid FROM jobs WHERE job_id=?", (job_id,)).fetchone()
+            db.close()
+            if pid and pid[0]:
+                return int(pid[0])
+        time.sleep(0.02)
+    raise AssertionError(f"{job_id} has no worker in {index}")
+
+
+LONG_JOB = """\
+name = "tiny"
+
+[defaults]
+seeds = 1
+episodes = 12
+max_steps = 40
+test_every_episodes = 10
+test_starts = 1
+test_max_steps = 30
+device = "cpu"
+
+[variants.WIN1]
+overrides = { hidden = [32, 32], batch_size = 16, learning_starts = 16 }
+
+[[parts]]
+name = "p1"
+entrants = ["WIN1"]
+train_tracks = ["oval"]
+"""
+
+
+def test_sigterm_to_a_pool_worker_preempts_its_job_and_a_rerun_resumes_it(
+    tmp_path: Path,
+) -> None:
+    """The worker saves at the next step, the job fails as preempted (resumable), and running
+    the tournament again continues the job to the tables of an undisturbed tournament."""
+    path = tmp_path / "tiny.toml"
+    path.write_text(LONG_JOB, encoding="utf-8")
+    job_id = "p1/WIN1-MOT/seed-0"
+    results = tmp_path / "res"
+    run = subprocess.Popen(
+        [sys.executable, "-m", "formula_tourney.cli", "run", str(path), "--workers", "1",
+         "--results", str(results), "--json"],
+        env=os.environ.copy(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        job = results / "tiny" / job_id
+        deadline = time.monotonic() + 120
+        while not JobFolder(job).config_path.exists():  # written once training has begun
+            assert run.poll() is None, run.communicate()
+            assert time.monotonic() < deadline
+            time.sleep(0.02)
+        assert not JobFolder(job).resume_path.exists()  # not before 300 CPU-s: only SIGTERM
+        os.kill(_worker_pid(results / "tiny" / "index.sqlite", job_id), signal.SIGTERM)
+        run.communicate(timeout=120)
+    finally:
+        if run.poll() is None:
+            run.kill()
+    store = Store(results / "tiny")
+    (row,) = store.jobs("train").to_dict("records")
+    assert row["status"] == "failed" and PREEMPTED in row["reason"], row
+    assert JobFolder(job).resume_path.exists()
+    again = run_tournament(path, workers=1, results_dir=results, retry_failed=True)
+    assert again["this_run"]["done"] == 1
+    # resumed, not started afresh: the first attempt's TensorBoard events are still there
+    assert len(list(JobFolder(job).tb_dir.glob("events.*"))) == 2
+    whole = run_tournament(path, workers=1, results_dir=tmp_path / "whole")
+    assert whole["this_run"]["done"] == 1
+    _assert_same_run(tmp_path / "whole" / "tiny" / job_id, job, episodes=12)
