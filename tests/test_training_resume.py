@@ -31,7 +31,12 @@ from formula_tourney.results.layout import JOB_TABLES
 from formula_tourney.tourney.api import run_tournament
 from formula_tourney.tourney.store import Store
 from formula_tourney.training import loop
-from formula_tourney.training.resume import PREEMPTED, Preempted
+from formula_tourney.training.resume import (
+    PREEMPTED,
+    Preempted,
+    preemption_requested,
+    sigterm_checkpoints,
+)
 from formula_tourney.training.run_spec import RunSpec, build_run_spec
 
 MACHINE_TIME = {"seconds", "wall_s", "started_at", "finished_at", "worker_pid",
@@ -183,6 +188,20 @@ def test_sigterm_mid_episode_writes_the_resume_file_and_the_resumed_run_is_the_s
     assert f"resuming from {JobFolder(job).resume_path}: " in resume_log.text
     loop.train(spec, tmp_path / "whole")
     _assert_same_run(tmp_path / "whole", job)
+
+
+def test_a_sigterm_that_no_step_saw_is_passed_on_after_the_run() -> None:
+    """A run that ends before a step boundary sees SIGTERM leaves the signal to the process's
+    own handler (a pool worker then ends), once the loop's handler is gone."""
+    received: list[int] = []
+    previous = signal.signal(signal.SIGTERM, lambda signum, _frame: received.append(signum))
+    try:
+        with sigterm_checkpoints():
+            os.kill(os.getpid(), signal.SIGTERM)
+            assert preemption_requested() and received == []
+        assert received == [signal.SIGTERM] and not preemption_requested()
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def test_a_resume_file_of_another_config_or_corrupt_is_ignored_with_its_name(
