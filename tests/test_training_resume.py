@@ -177,11 +177,12 @@ def test_sigterm_mid_episode_writes_the_resume_file_and_the_resumed_run_is_the_s
             os.kill(os.getpid(), signal.SIGTERM)
 
     monkeypatch.setattr(FamilyEntrant, "observe", terminate_mid_episode)
+    handler = signal.getsignal(signal.SIGTERM)
     with pytest.raises(Preempted, match=r"preempted \(resumable\)"):
         loop.train(spec, job)
     assert PREEMPTED == "preempted (resumable)"
     assert JobFolder(job).resume_path.exists() and not JobFolder(job).is_finished()
-    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # the loop's handler is gone
+    assert signal.getsignal(signal.SIGTERM) is handler  # the loop's handler is gone
     saved = torch.load(JobFolder(job).resume_path, weights_only=True)["loop"]
     assert saved["env_steps"] == sent[0] and len(saved["actions"]) > 0  # mid-episode
     loop.train(spec, job)
