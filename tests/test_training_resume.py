@@ -191,6 +191,25 @@ def test_sigterm_mid_episode_writes_the_resume_file_and_the_resumed_run_is_the_s
     _assert_same_run(tmp_path / "whole", job)
 
 
+def test_sigterm_stops_a_run_of_several_cars_without_a_resume_file(
+    tmp_path: Path, ring_tracks: None
+) -> None:
+    """Several cars are mid-episode at different steps: such a run starts again when run
+    again, and says so."""
+    spec = build_run_spec(
+        variant="WIN1", overrides=SMALL, train_tracks=["ring"], device="cpu", seed=4,
+        schedule={"episodes": 6, "max_steps": 60, "test_every_episodes": 2, "test_starts": 1,
+                  "test_max_steps": 30, "cars": 2, "resume_every_cpu_s": 1e-6},
+    )  # fmt: skip
+
+    def terminate(info: dict) -> None:
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    with pytest.raises(Preempted, match="a run of 2 cars starts again when run again"):
+        loop.train(spec, tmp_path / "job", terminate)
+    assert not JobFolder(tmp_path / "job").resume_path.exists()
+
+
 def test_a_sigterm_that_no_step_saw_is_passed_on_after_the_run() -> None:
     """A run that ends before a step boundary sees SIGTERM leaves the signal to the process's
     own handler (a pool worker then ends), once the loop's handler is gone."""
