@@ -93,9 +93,10 @@ def _interrupt_after(episode: int, job: Path):  # noqa: ANN202 - a progress call
 
 @pytest.mark.parametrize(
     ("variant", "demos", "agent"),
-    [("WIN1", None, {}), ("PER40k", None, {}), ("SAC", None, {}),
+    [("WIN1", None, {}), ("PER40k", None, {}), ("SAC", None, {}), ("TD3", None, {}),
+     ("CrossQ", None, {}),
      ("WIN1", {"laps": 1, "line": "centre", "bc_steps": 5, "bc_weight": 0.5}, {})],
-    ids=["WIN1", "PER", "SAC", "demos"],
+    ids=["WIN1", "PER", "SAC", "TD3", "CrossQ", "demos"],
 )  # fmt: skip
 def test_an_abandoned_run_resumes_to_the_uninterrupted_tables(
     tmp_path: Path,
