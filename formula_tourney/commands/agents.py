@@ -106,6 +106,7 @@ def register(app: typer.Typer) -> None:
         # heavy (torch, numba) imports stay inside the command so that --help is instant
         from formula_tourney.results.folder import JobFolder
         from formula_tourney.training.loop import train
+        from formula_tourney.training.resume import Preempted
 
         check_output_path(out, "--out", folder=True)
         demos = chosen_values(ctx, TRAIN_OPTIONS, values, DemoSettings)
@@ -126,7 +127,11 @@ def register(app: typer.Typer) -> None:
                 f"{'-' if best is None else f'{best:.2f} s'}  {p['seconds']:.0f} s"
             )
 
-        summary = train(spec, out, progress)
+        try:
+            summary = train(spec, out, progress)
+        except Preempted as stop:  # SIGTERM: the job folder holds its resume file (or says why not)
+            message(f"stopped: {stop}; the same command with the same --out resumes it")
+            raise typer.Exit(143) from None
         summary["out"] = str(out)
         emit(summary, as_json, _render_result(summary))
 

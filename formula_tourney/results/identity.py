@@ -17,8 +17,9 @@ from typing import Any
 TEST_ONLY_KEYS = ("test_tracks",)
 """Top-level run-spec keys that change the tests and never the training."""
 TEST_ONLY_SCHEDULE_KEYS = ("test_every_episodes", "test_starts", "test_max_steps",
-                           "save_test_checkpoints", "test_grip_scales")
-"""Schedule keys that change the tests and never the training."""
+                           "save_test_checkpoints", "test_grip_scales", "resume_every_cpu_s")
+"""Schedule keys that change the tests (or how often a job saves where it is) and never the
+training."""
 
 
 def training_digest(run_spec: Mapping[str, Any]) -> str:

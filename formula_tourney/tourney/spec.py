@@ -231,6 +231,7 @@ class JobSettings(_Strict):
     traffic_bots: _unset_or(Schedule, "traffic_bots") = None
     budget_cpu_s: _unset_or(Schedule, "budget_cpu_s") = None
     stop_at: _unset_or(Schedule, "stop_at") = None
+    resume_every_cpu_s: _unset_or(Schedule, "resume_every_cpu_s") = None
     demos: DemoSettings | None = Field(
         None, description="Demonstrations for every entrant here (beyond the paper)."
     )
