@@ -148,9 +148,16 @@ class TinySAC:
         """SAC explores by sampling its policy: no per-car noise to reset."""
 
     def save(self, path: Path) -> None:
-        data = {"settings": self.s.model_dump(), "actor": self.actor.state_dict(),
-                "spaces": [self.spaces.obs_dim, self.spaces.action_dim,
-                           self.spaces.action_low.tolist(), self.spaces.action_high.tolist()]}
+        data = {
+            "settings": self.s.model_dump(),
+            "actor": self.actor.state_dict(),
+            "spaces": [
+                self.spaces.obs_dim,
+                self.spaces.action_dim,
+                self.spaces.action_low.tolist(),
+                self.spaces.action_high.tolist(),
+            ],
+        }
         atomic_write(path, lambda tmp: torch.save(data, tmp))
 
     @classmethod

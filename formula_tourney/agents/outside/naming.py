@@ -78,7 +78,7 @@ class OutsideEntrant(BaseModel):
             raise ValueError("an SB3 entrant takes kwargs = {...} (the algorithm's constructor "
                              "arguments), not settings")  # fmt: skip
         if self.impl is not None and not _IMPL.fullmatch(self.impl):
-            raise ValueError(f"impl {self.impl!r} is not \"package.module:Class\"")
+            raise ValueError(f'impl {self.impl!r} is not "package.module:Class"')
         return self
 
     @property

@@ -79,8 +79,10 @@ def import_library(library: str) -> Any:
 
 
 UNSUPPORTED: dict[str, str] = {
-    "DQN": "discrete actions only", "QRDQN": "discrete actions only",
-    "MaskablePPO": "discrete actions with masks", "RecurrentPPO": "carries LSTM states",
+    "DQN": "discrete actions only",
+    "QRDQN": "discrete actions only",
+    "MaskablePPO": "discrete actions with masks",
+    "RecurrentPPO": "carries LSTM states",
 }
 """Algorithms of the libraries the adapter cannot drive, and why."""
 
@@ -152,8 +154,8 @@ def _spaces_env(spaces: EntrantSpaces) -> Any:
         def __init__(self) -> None:
             self.observation_space = gym.spaces.Box(-np.inf, np.inf, (spaces.obs_dim,),
                                                     np.float32)  # fmt: skip
-            self.action_space = gym.spaces.Box(np.asarray(spaces.action_low, np.float32),
-                                               np.asarray(spaces.action_high, np.float32))  # fmt: skip
+            low = np.asarray(spaces.action_low, np.float32)
+            self.action_space = gym.spaces.Box(low, np.asarray(spaces.action_high, np.float32))
 
         def reset(self, *, seed: int | None = None, options: Any = None) -> Any:
             super().reset(seed=seed)
@@ -299,9 +301,8 @@ class SB3Entrant:
             raise UserInputError(f"{path}: not a model saved by the SB3 adapter") from None
         settings = SB3Settings.model_validate(meta["settings"])
         s = meta["spaces"]
-        spaces = EntrantSpaces(int(s["obs_dim"]), int(s["action_dim"]),
-                               np.asarray(s["action_low"], np.float32),
-                               np.asarray(s["action_high"], np.float32), int(s["cars"]))  # fmt: skip
+        low, high = (np.asarray(s[k], np.float32) for k in ("action_low", "action_high"))
+        spaces = EntrantSpaces(int(s["obs_dim"]), int(s["action_dim"]), low, high, int(s["cars"]))
         algo = algorithm_class(settings.library, settings.algorithm)
         model = algo.load(io.BytesIO(data), device="cpu" if device == "auto" else device)
         return cls(model, settings, spaces)
@@ -370,8 +371,9 @@ class SB3Entrant:
         scaled = np.clip(model.policy.scale_action(np.asarray(t.action, np.float32)), -1, 1)
         done = bool(t.terminated or t.truncated)
         info = {"TimeLimit.truncated": bool(t.truncated and not t.terminated)}
-        model.replay_buffer.add(t.obs[None], t.next_obs[None], scaled[None],
-                                np.array([t.reward], np.float32), np.array([done]), [info])  # fmt: skip
+        reward = np.array([t.reward], np.float32)
+        model.replay_buffer.add(t.obs[None], t.next_obs[None], scaled[None], reward,
+                                np.array([done]), [info])  # fmt: skip
         model.num_timesteps += 1
         self.transitions_since_train += 1
         self.episodes_since_train += int(done)
@@ -444,7 +446,9 @@ class SB3Entrant:
             action = model.policy.scale_action(action)
         obs_t = model.policy.obs_to_tensor(t.obs)[0]
         with torch.no_grad():
-            values, log_prob, _ = model.policy.evaluate_actions(obs_t, torch.from_numpy(action)[None])
+            values, log_prob, _ = model.policy.evaluate_actions(
+                obs_t, torch.from_numpy(action)[None]
+            )
         return action, float(values[0]), float(log_prob[0])
 
     def _train_on_policy(self) -> None:
@@ -464,7 +468,8 @@ class SB3Entrant:
         """The losses SB3's ``train`` logged since the last call (then forgotten)."""
         values = self.model.logger.name_to_value
         out = {k.removeprefix("train/"): float(v) for k, v in values.items()
-               if k.startswith("train/") and "loss" in k and isinstance(v, (int, float))}  # fmt: skip
+               if k.startswith("train/") and "loss" in k
+               and isinstance(v, (int, float))}  # fmt: skip
         values.clear()
         return out
 
@@ -480,16 +485,27 @@ def _tuples(value: Any) -> Any:
     return tuple(_tuples(v) for v in value) if isinstance(value, (list, tuple)) else value
 
 
-_BUFFER_ARRAYS = ("observations", "next_observations", "actions", "rewards", "dones", "timeouts",
-                  "episode_starts", "values", "log_probs", "advantages", "returns")
+_BUFFER_ARRAYS = (
+    "observations",
+    "next_observations",
+    "actions",
+    "rewards",
+    "dones",
+    "timeouts",
+    "episode_starts",
+    "values",
+    "log_probs",
+    "advantages",
+    "returns",
+)
 """The array attributes of SB3's replay and rollout buffers (each has some of them)."""
 
 
 def _buffer_state(buffer: Any) -> dict[str, Any]:
     """The filled rows of a replay or rollout buffer, as tensors."""
     rows = buffer.buffer_size if buffer.full else buffer.pos
-    arrays = {n: torch.from_numpy(np.ascontiguousarray(getattr(buffer, n)[:rows]))
-              for n in _BUFFER_ARRAYS if isinstance(getattr(buffer, n, None), np.ndarray)}  # fmt: skip
+    names = [n for n in _BUFFER_ARRAYS if isinstance(getattr(buffer, n, None), np.ndarray)]
+    arrays = {n: torch.from_numpy(np.ascontiguousarray(getattr(buffer, n)[:rows])) for n in names}
     return {"pos": int(buffer.pos), "full": bool(buffer.full), "rows": rows, "arrays": arrays}
 
 

@@ -1,0 +1,189 @@
+"""Outside entrants in real tournaments: the example agent, SB3 adapters, faults, resume, checks."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from formula_tourney.agents.outside.naming import OutsideEntrant
+from formula_tourney.errors import UserInputError
+from formula_tourney.results.folder import JobFolder
+from formula_tourney.results.layout import LAST_CHECKPOINT
+from formula_tourney.tourney.api import run_tournament
+from formula_tourney.tourney.runner import FAULTS_ENV
+
+REPO = Path(__file__).resolve().parents[1]
+
+HEAD = """\
+name = "byo"
+
+[defaults]
+seeds = 1
+episodes = 2
+max_steps = 40
+test_every_episodes = 2
+test_starts = 1
+test_max_steps = 40
+device = "cpu"
+
+[variants.WIN1]
+overrides = {{ hidden = [32, 32], batch_size = 16, learning_starts = 16 }}
+[variants.Tiny]
+impl = "examples.tiny_sac:TinySAC"
+settings = {{ hidden = 16, batch_size = 16, learning_starts = 16 }}
+{more}
+[[parts]]
+name = "p1"
+entrants = {entrants}
+train_tracks = ["oval"]
+"""
+
+
+def tournament(tmp_path: Path, entrants: list[str], more: str = "") -> Path:
+    path = tmp_path / "byo.toml"
+    path.write_text(HEAD.format(entrants=json.dumps(entrants), more=more), encoding="utf-8")
+    return path
+
+
+def jobs(results: Path) -> dict[str, dict]:
+    db = sqlite3.connect(results / "byo" / "index.sqlite")
+    db.row_factory = sqlite3.Row
+    out = {r["job_id"]: dict(r) for r in db.execute("SELECT * FROM jobs")}
+    db.close()
+    return out
+
+
+def test_example_agent_trains_in_a_tournament_and_its_model_loads(tmp_path: Path) -> None:
+    result = run_tournament(tournament(tmp_path, ["Tiny", "WIN1"]), workers=2,
+                            results_dir=tmp_path / "res")  # fmt: skip
+    assert result["this_run"]["failed"] == 0
+    rows = jobs(tmp_path / "res")
+    assert {r["status"] for r in rows.values()} == {"done"}
+    folder = JobFolder(tmp_path / "res/byo/p1/Tiny-MOT/seed-0")
+    assert "outside entrant examples.tiny_sac:TinySAC" in folder.beyond_paper()
+    assert len(folder.table("episodes")) == 2 and len(folder.table("tests")) >= 1
+    from examples.tiny_sac import TinySAC
+
+    model = TinySAC.load(folder.checkpoint_path(LAST_CHECKPOINT), "cpu")
+    action = model.act(np.zeros((1, 1, model.spaces.obs_dim), np.float32))
+    assert action.shape == (1, 3) and np.isfinite(action).all()
+
+
+def test_each_fault_fails_only_its_job(tmp_path: Path) -> None:
+    more = "".join(f'[variants.{name}]\nimpl = "outside_entrants:{name}"\n'
+                   for name in ("Raises", "ReturnsNaN", "WrongShape"))  # fmt: skip
+    path = tournament(tmp_path, ["Tiny", "Raises", "ReturnsNaN", "WrongShape"], more)
+    result = run_tournament(path, workers=2, results_dir=tmp_path / "res")
+    rows = jobs(tmp_path / "res")
+    assert rows["p1/Tiny-MOT/seed-0"]["status"] == "done"
+    reasons = {k.split("/")[1]: r["reason"] for k, r in rows.items() if r["status"] == "failed"}
+    assert set(reasons) == {"Raises-MOT", "ReturnsNaN-MOT", "WrongShape-MOT"}
+    assert "driver bug at step 0" in reasons["Raises-MOT"]
+    assert "NaN" in reasons["ReturnsNaN-MOT"]
+    assert "shape (1, 4)" in reasons["WrongShape-MOT"]
+    assert result["this_run"]["failed"] == 3
+
+
+@pytest.mark.parametrize(("entry", "message"), [
+    ('impl = "no_such_module:X"', "cannot import module 'no_such_module'"),
+    ('impl = "examples.tiny_sac:Nope"', "has no class 'Nope'; its classes: Actor, TinySAC"),
+    ('impl = "examples.tiny_sac"', 'is not "package.module:Class"'),
+    ('impl = "outside_entrants:NotAnEntrant"', "missing settings_model, build, load, act"),
+    ('impl = "outside_entrants:BadAtZeros"', "act() on zeros returned shape (3,); allowed: (1, 3)"),
+    ('impl = "examples.tiny_sac:TinySAC"\nsettings = { hidden = 1 }', "settings: hidden"),
+    ('entry = "nobody"', "no entry point 'nobody' in group 'formula_tourney.entrants'"),
+    ('sb3 = "DQN"', "unsupported sb3 algorithm 'DQN' (discrete actions only)"),
+    ('sb3 = "SAC"\nkwargs = { bogus = 1 }', "kwargs.bogus: not an argument of SAC; allowed keys"),
+    ('sb3 = "SAC"\nkwargs = { seed = 1 }', "kwargs.seed is set by the adapter"),
+    ('sb3 = "SAC"\nkwargs = { learning_rate = "fast" }', "build() failed"),
+    ('sb3 = "SAC"\noverrides = { hidden = [8] }', "an outside entrant (sb3) takes no agent keys"),
+])  # fmt: skip
+def test_bad_outside_entrants_are_refused_before_anything_runs(tmp_path: Path, entry: str,
+                                                                message: str) -> None:  # fmt: skip
+    if "sb3" in entry:
+        pytest.importorskip("stable_baselines3", reason="the [sb3] extra is not installed")
+    path = tournament(tmp_path, ["Bad", "WIN1"], f"[variants.Bad]\n{entry}\n")
+    with pytest.raises(UserInputError) as err:
+        run_tournament(path, workers=1, results_dir=tmp_path / "res")
+    text = str(err.value)
+    assert message in text and "\n" not in text and str(path) in text
+    assert not (tmp_path / "res").exists()
+
+
+def test_the_cli_exits_2_with_one_line(tmp_path: Path) -> None:
+    path = tournament(tmp_path, ["Bad"], '[variants.Bad]\nimpl = "examples.tiny_sac:Nope"\n')
+    proc = subprocess.run(
+        [sys.executable, "-m", "formula_tourney.cli", "run", str(path), "--results",
+         str(tmp_path / "res")], cwd=REPO, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert proc.returncode == 2
+    assert "has no class 'Nope'" in proc.stderr and not (tmp_path / "res").exists()
+
+
+def test_sb3_sac_and_crossq_train_through_the_adapter(tmp_path: Path) -> None:
+    pytest.importorskip("stable_baselines3", reason="the [sb3] extra is not installed")
+    pytest.importorskip("sb3_contrib", reason="the [sb3] extra (sb3-contrib) is not installed")
+    more = ('[variants.SAC3]\nsb3 = "SAC"\nkwargs = { learning_starts = 16, batch_size = 16, '
+            'policy_kwargs = { net_arch = [16, 16] } }\n'
+            '[variants.CrossQ3]\nsb3_contrib = "CrossQ"\nkwargs = { learning_starts = 16, '
+            'batch_size = 16 }\n')  # fmt: skip
+    result = run_tournament(tournament(tmp_path, ["SAC3", "CrossQ3"], more), workers=2,
+                            results_dir=tmp_path / "res")  # fmt: skip
+    assert result["this_run"]["failed"] == 0
+    from formula_tourney.agents.outside.sb3 import SB3Entrant
+
+    for name, label in (("SAC3", "sb3 "), ("CrossQ3", "sb3-contrib ")):
+        folder = JobFolder(tmp_path / f"res/byo/p1/{name}-MOT/seed-0")
+        assert any(b.startswith(f"outside entrant {label}") for b in folder.beyond_paper())
+        assert len(folder.table("episodes")) == 2
+        model = SB3Entrant.load(folder.checkpoint_path(LAST_CHECKPOINT), "cpu")
+        assert model.act(np.zeros((1, 1, model.spaces.obs_dim), np.float32)).shape == (1, 3)
+        # SB3 wrote nothing of its own: no logs, no monitor files beside the job's
+        assert not list(folder.path.rglob("*.monitor.csv")) and not list(
+            folder.path.rglob("progress.csv"))  # fmt: skip
+
+
+def test_kill_9_of_the_parent_then_resume_with_an_outside_entrant(tmp_path: Path) -> None:
+    path = tournament(tmp_path, ["Tiny", "WIN1"])
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "formula_tourney.cli", "run", str(path), "--workers", "2",
+         "--results", str(tmp_path / "res"), "--json"], cwd=REPO,
+        env={**os.environ, FAULTS_ENV: json.dumps({"p1/Tiny-*": "sleep:30"})},
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    deadline = time.monotonic() + 120
+    while True:
+        assert time.monotonic() < deadline and proc.poll() is None
+        try:
+            rows = jobs(tmp_path / "res")
+        except sqlite3.Error:
+            rows = {}
+        if rows.get("p1/WIN1-MOT/seed-0", {}).get("status") == "done" and rows.get(
+                "p1/Tiny-MOT/seed-0", {}).get("status") == "running":  # fmt: skip
+            break
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGKILL)
+    proc.communicate(timeout=30)
+    time.sleep(1.0)  # the orphaned worker follows its parent
+    result = run_tournament(path, workers=2, results_dir=tmp_path / "res")
+    assert result["this_run"]["skipped"] == 1  # WIN1 was not trained again
+    rows = jobs(tmp_path / "res")
+    assert rows["p1/Tiny-MOT/seed-0"]["status"] == "done"
+    assert rows["p1/Tiny-MOT/seed-0"]["attempts"] == 2
+
+
+def test_labels_name_the_library_and_version() -> None:
+    pytest.importorskip("stable_baselines3", reason="the [sb3] extra is not installed")
+    import stable_baselines3
+
+    assert OutsideEntrant(sb3="SAC").label() == f"sb3 {stable_baselines3.__version__} SAC"
+    assert OutsideEntrant(impl="examples.tiny_sac:TinySAC").label() == "examples.tiny_sac:TinySAC"
