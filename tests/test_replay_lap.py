@@ -20,6 +20,7 @@ import torch
 from PIL import Image
 from training_fixtures import ring_track
 
+from formula_tourney.agents import family_entrant
 from formula_tourney.agents.core import Agent
 from formula_tourney.cli import main
 from formula_tourney.results import metrics
@@ -31,7 +32,7 @@ from formula_tourney.training.run_spec import build_run_spec
 
 ANGLE, TRACK_POS, SPEED_X = 0, 20, 21
 """Observation indices (``sim.sensors.observation_names``) the hand-set actor reads."""
-loop_make_agent = loop.make_agent
+loop_make_agent = family_entrant.make_agent
 
 
 def _steered(agent: Agent) -> Agent:
@@ -56,7 +57,8 @@ def _steered(agent: Agent) -> Agent:
 @pytest.fixture
 def job(tmp_path: Path, ring_tracks: None, monkeypatch: pytest.MonkeyPatch) -> Path:
     """A finished job folder whose tests lapped the ring cleanly from one of two starts."""
-    monkeypatch.setattr(loop, "make_agent", lambda *a, **k: _steered(loop_make_agent(*a, **k)))
+    steered = lambda *a, **k: _steered(loop_make_agent(*a, **k))  # noqa: E731
+    monkeypatch.setattr(family_entrant, "make_agent", steered)
     spec = build_run_spec(
         variant="WIN1", train_tracks=["ring"], seed=5, device="cpu",
         overrides={"hidden": (8, 8), "batch_size": 16, "learning_starts": 10**6},

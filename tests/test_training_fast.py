@@ -17,6 +17,7 @@ import pytest
 import torch
 from training_fixtures import SMALL, ring_track
 
+from formula_tourney.agents import family_entrant
 from formula_tourney.agents.buffers import (
     DemoMix,
     OnlinePriorities,
@@ -160,13 +161,13 @@ def test_epsilon_floor_keeps_the_loop_exploring_after_the_anneal(
     stays at ``epsilon_floor`` (the paper's 0: the actor's own actions); a floor is written to
     config.json, the paper's 0 is not."""
     seen: list[float] = []
-    original = loop.BrakeExplorationNoise.__call__
+    original = family_entrant.BrakeExplorationNoise.__call__
 
     def record(self, action, epsilon):  # noqa: ANN001, ANN202 - the noise's own signature
         seen.append(epsilon)
         return original(self, action, epsilon)
 
-    monkeypatch.setattr(loop.BrakeExplorationNoise, "__call__", record)
+    monkeypatch.setattr(family_entrant.BrakeExplorationNoise, "__call__", record)
     spec = build_run_spec(
         variant="WIN1", overrides={**SMALL, "exploration_steps": 50, "epsilon_floor": floor},
         train_tracks=["ringA"], device="cpu", seed=1,

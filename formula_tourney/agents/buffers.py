@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -199,6 +199,45 @@ class ReplayBuffer:
         self._lane_episode[lanes] = np.arange(self._next_episode, self._next_episode + k)
         self._next_episode += k
         self._lane_step[lanes] = 0
+
+    # --- state --------------------------------------------------------------------------------
+    _SLOT_ARRAYS = ("obs", "next_obs", "actions", "rewards", "terminated", "truncated",
+                    "episode", "step_in_episode")  # fmt: skip
+    _LANE_ARRAYS = ("_lane_pos", "_lane_size", "_lane_episode", "_lane_step")
+    _STATE_NUMBERS = ("pos", "size", "_episode_id", "_episode_step", "_next_episode")
+
+    def state_dict(self) -> dict[str, Any]:
+        """Everything sampling depends on, to resume a run bit-identically: the stored slots
+        (a lane's filled ones only), the counters and the sampling generator's state (plain
+        arrays, ints and dicts)."""
+        slots = self._filled_slots()
+        state: dict[str, Any] = {name: getattr(self, name)[slots] for name in self._SLOT_ARRAYS}
+        state.update({name: getattr(self, name).copy() for name in self._LANE_ARRAYS})
+        state.update({name: int(getattr(self, name)) for name in self._STATE_NUMBERS})
+        state["capacity"] = self.capacity
+        state["rng"] = self.rng.bit_generator.state
+        return state
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Continue from :meth:`state_dict` of a buffer built with the same arguments."""
+        if int(state["capacity"]) != self.capacity:
+            raise ValueError(f"buffer state of capacity {state['capacity']}, not {self.capacity}")
+        for name in self._LANE_ARRAYS:
+            getattr(self, name)[:] = np.asarray(state[name])
+        for name in self._STATE_NUMBERS:
+            setattr(self, name, int(state[name]))
+        slots = self._filled_slots()
+        for name in self._SLOT_ARRAYS:
+            getattr(self, name)[slots] = np.asarray(state[name])
+        self.rng.bit_generator.state = state["rng"]
+
+    def _filled_slots(self) -> np.ndarray:
+        """The slots holding a transition: a prefix of a filling one-lane buffer, each lane's
+        own prefix with lanes (lanes fill from their base)."""
+        if self.lanes == 1 or self.size == self.capacity:
+            return np.arange(self.size)
+        return np.concatenate([base + np.arange(n) for base, n in zip(
+            self._lane_base, self._lane_size, strict=True)])  # fmt: skip
 
     # --- sampling -------------------------------------------------------------------------------
     def _sample_indices(self, batch_size: int) -> tuple[np.ndarray, np.ndarray]:
@@ -381,6 +420,22 @@ class PrioritizedReplayBuffer(ReplayBuffer):
         slots = super().add_cars(*args, **kwargs)  # type: ignore[arg-type]
         self.tree.update(slots, np.full(len(slots), self.max_priority**self.alpha))
         return slots
+
+    def state_dict(self) -> dict[str, Any]:
+        """The uniform buffer's state plus the stored slots' leaves of the sum tree (every inner
+        node is the exact sum of its children, so the leaves rebuild it bit for bit), the
+        largest priority and beta."""
+        state = super().state_dict()
+        leaves = self.tree.values(self._filled_slots())
+        state.update(leaves=leaves, max_priority=self.max_priority, beta=self.beta)
+        return state
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        super().load_state_dict(state)
+        self.tree.tree[:] = 0.0
+        self.tree.update(self._filled_slots(), np.asarray(state["leaves"], np.float64))
+        self.max_priority = float(state["max_priority"])
+        self.beta = float(state["beta"])
 
     def priority(self, td_errors: np.ndarray, action_grads: np.ndarray) -> np.ndarray:
         """The paper's p_i = delta_i^2 + lambda3 |grad_a Q(s_i, a_i)|^2 + eps."""

@@ -8,7 +8,7 @@ throttle is lowered by a factor (1 - epsilon'), so exploration does not press bo
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -120,6 +120,22 @@ class BrakeExplorationNoise:
         self.ou.reset()
         self._hold_left = 0
 
+    def state_dict(self) -> dict[str, Any]:
+        """The OU state, a held brake exploration and the generator's state (plain values):
+        what a resumed run needs to draw the same noise."""
+        return {
+            "ou": self.ou.state.copy(),
+            "hold_left": self._hold_left,
+            "hold_target": float(self._hold_target),
+            "rng": self.rng.bit_generator.state,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.ou.state = np.asarray(state["ou"], dtype=np.float64).copy()
+        self._hold_left = int(state["hold_left"])
+        self._hold_target = float(state["hold_target"])
+        self.rng.bit_generator.state = state["rng"]
+
     def __call__(self, action: np.ndarray, epsilon: float) -> tuple[np.ndarray, NoiseEvent]:
         """Return the explored action (clipped to the action box) and what was done."""
         action = np.asarray(action, dtype=np.float64)
@@ -140,8 +156,11 @@ class BrakeExplorationNoise:
                 self._hold_left = int(self.rng.integers(self.brake_hold_steps))
                 self._hold_target = self.brake_mean + self.brake_sigma * self.rng.standard_normal()
         if brake_explored:
-            target_brake = (self._hold_target if self.brake_hold_steps > 1
-                            else self.brake_mean + self.brake_sigma * self.rng.standard_normal())
+            target_brake = (
+                self._hold_target
+                if self.brake_hold_steps > 1
+                else self.brake_mean + self.brake_sigma * self.rng.standard_normal()
+            )
             mask = mask.copy()
             if self.action_dim == 2:  # the pedal pulled towards the brake side
                 out[PEDAL] = action[PEDAL] + epsilon * (-target_brake - action[PEDAL])

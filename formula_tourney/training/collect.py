@@ -1,12 +1,14 @@
 """Driving cars into the replay buffer: one car (FormulaRacing-v0) or N cars (the vector env).
 
-Both collectors take one action per car, step their env(s), store each car's transition in the
-car's lane of the buffer with the reward the reward model's :class:`sim.reward.RewardRule` makes
-of the env's (its crash penalty and scale), keep each car's observation window (edge-padded at
-its episode's start, exactly as ``agents.buffers.ObservationWindow`` and the buffer build it),
-and hand back the car-episodes that ended. The training loop owns acting,
-exploration and learning (and closes the envs); a test drives scripted actions through the same
-``step``.
+Both collectors take one action per car, step their env(s), make each car's
+:class:`~formula_tourney.agents.protocol.Transition` of the step (``transitions``) with the
+reward the reward model's :class:`sim.reward.RewardRule` makes of the env's (its crash penalty
+and scale), keep each car's observation window (edge-padded at its episode's start, exactly as
+``agents.buffers.ObservationWindow`` and the buffer build it), and hand back the car-episodes
+that ended. The training loop hands the transitions to its entrant (``Entrant.observe``) and owns
+acting, exploration and learning (and closes the envs); given a ``buffer``, a collector stores
+them there itself, as an entrant of ours does (``family_entrant.store_transitions``: a test or
+a calibration that drives scripted actions through the same ``step``).
 
 * :class:`SingleCarCollector` is the paper's loop: one env per train track, a track and a reset
   seed drawn per episode.
@@ -26,6 +28,8 @@ from typing import Any
 import numpy as np
 
 from formula_tourney.agents.buffers import ObservationWindow, ReplayBuffer
+from formula_tourney.agents.family_entrant import store_transitions
+from formula_tourney.agents.protocol import Transition
 from formula_tourney.sim.reward import RewardRule
 
 
@@ -62,7 +66,7 @@ class SingleCarCollector:
         envs: Mapping[str, Any],
         train_tracks: Sequence[str],
         rng: np.random.Generator,
-        buffer: ReplayBuffer,
+        buffer: ReplayBuffer | None,
         window: int,
         reward_rule: RewardRule,
     ) -> None:
@@ -73,6 +77,7 @@ class SingleCarCollector:
         self.reward_rule = reward_rule
         self.window = ObservationWindow(window)
         self.stored = 0
+        self.transitions: list[Transition] = []  # the last step's
         self.started = [0]  # cars whose episode began at the last reset or step
         self._start()
 
@@ -90,11 +95,15 @@ class SingleCarCollector:
         return [self.stack]
 
     def step(self, actions: Sequence[np.ndarray]) -> list[CarEpisode]:
-        """Apply ``actions[0]``, store the transition, start a new episode after an end."""
+        """Apply ``actions[0]``, make (and store) the transition, start a new episode after an
+        end."""
         action = actions[0]
         next_obs, reward, terminated, truncated, info = self.env.step(action)
         stored = self.reward_rule(float(reward), bool(terminated))
-        self.buffer.add(self.obs, action, stored, next_obs, bool(terminated), bool(truncated))
+        self.transitions = [Transition(0, self.obs, action, stored, next_obs, bool(terminated),
+                                       bool(truncated))]  # fmt: skip
+        if self.buffer is not None:
+            store_transitions(self.buffer, self.transitions)
         self.stored = 1
         self.steps += 1
         self.reward += float(reward)
@@ -120,7 +129,7 @@ class VectorCollector:
         self,
         groups: Sequence[tuple[str, Any]],
         seeds: Sequence[int],
-        buffer: ReplayBuffer,
+        buffer: ReplayBuffer | None,
         window: int,
         reward_rule: RewardRule,
     ) -> None:
@@ -129,7 +138,7 @@ class VectorCollector:
         self.reward_rule = reward_rule
         sizes = [env.num_envs for _, env in self.groups]
         self.cars = n = int(sum(sizes))
-        if buffer.lanes != n:
+        if buffer is not None and buffer.lanes != n:
             raise ValueError(f"{n} cars need a buffer with {n} lanes, got {buffer.lanes}")
         bounds = np.cumsum([0, *sizes])
         self._slices = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
@@ -143,6 +152,7 @@ class VectorCollector:
         self.steps = np.zeros(n, np.int64)
         self.needs_reset = np.zeros(n, bool)  # the env resets these cars on the next step
         self.stored = 0
+        self.transitions: list[Transition] = []  # the last step's, in car order
         self.started = list(range(n))
 
     @property
@@ -151,8 +161,8 @@ class VectorCollector:
         return self._windows
 
     def step(self, actions: Sequence[np.ndarray] | np.ndarray) -> list[CarEpisode]:
-        """Apply one action per car, store the live cars' transitions, return ended episodes
-        in car order."""
+        """Apply one action per car, make (and store) the live cars' transitions, return ended
+        episodes in car order."""
         actions = np.asarray(actions, np.float32)
         outs = [env.step(actions[sl]) for (_, env), sl in zip(self.groups, self._slices,
                                                               strict=True)]  # fmt: skip
@@ -166,16 +176,15 @@ class VectorCollector:
             infos = [o[4] for o in outs]
         live = ~self.needs_reset
         stored = self.reward_rule(reward, terminated)
-        if live.all():
-            lanes = self._lanes
-            self.buffer.add_cars(lanes, self.obs, actions, stored, next_obs, terminated,
-                                 truncated)  # fmt: skip
-        else:
-            lanes = live.nonzero()[0]
-            self.buffer.add_cars(
-                lanes, self.obs[lanes], actions[lanes], stored[lanes], next_obs[lanes],
-                terminated[lanes], truncated[lanes],
-            )  # fmt: skip
+        lanes = self._lanes if live.all() else live.nonzero()[0]
+        obs = self.obs
+        self.transitions = [
+            Transition(c, obs[c], actions[c], float(stored[c]), next_obs[c], bool(terminated[c]),
+                       bool(truncated[c]))
+            for c in lanes.tolist()
+        ]  # fmt: skip
+        if self.buffer is not None:
+            store_transitions(self.buffer, self.transitions)
         self.stored = len(lanes)
         self.reward[lanes] += reward[lanes]
         self.steps[lanes] += 1

@@ -1,21 +1,25 @@
-"""One training run: env + DDPG variant + periodic greedy tests, written as a job folder.
+"""One training run: env + an entrant + periodic greedy tests, written as a job folder.
 
 The run is fully described by its :class:`~formula_tourney.training.run_spec.RunSpec`, built and
 validated by the caller; nothing here re-defaults or re-checks a setting. Files go through
 ``results.folder.JobFolder`` (the one owner of the layout): ``config.json`` first, tables and
 checkpoints as they come, ``summary.json`` last (its presence means finished).
 
-One loop serves every configuration: each step acts for every car (the greedy actor plus the
-car's own exploration noise), steps the cars through a collector (``training.collect``: one car,
-or ``schedule.cars`` cars of the vector env, each into its own lane of the one buffer), then
-earns ``agent.updates_per_step`` updates per stored transition once learning has started and
-spends them. Each finished car-episode is one ``episodes.parquet`` row, and the tests and the
+The loop drives any :class:`~formula_tourney.agents.protocol.Entrant`: the class and settings
+come from ``agents.entrants.resolve_entrant`` (our families' ``FamilyEntrant`` unless an outside
+kind claims the run). One loop serves every configuration: each step tells the entrant which
+cars began an episode, asks it for every car's exploring action (one window per car), checks
+the actions (:func:`checked_actions`: shape ``(cars, action_dim)``, numeric, finite; a faulty
+entrant fails its job with a reason, never an env), steps the cars through a collector
+(``training.collect``: one car, or ``schedule.cars`` cars of the vector env), hands the step's
+stored transitions to ``entrant.observe`` and calls ``entrant.update`` once. Each finished
+car-episode is one ``episodes.parquet`` row, and the tests (the entrant's greedy ``act``) and the
 progress callback follow the count of finished car-episodes. Every test row records the
-CPU-seconds the run had spent when its round ended (``cpu_s``, ``training.budget.CpuClock``), and
-a schedule's ``budget_cpu_s`` or ``stop_at`` ends the run (``training.budget.StopRule``). With
-``spec.demos`` the follower's laps (``training.demos``) fill a demonstration buffer before the
-first step, the actor may be warm-started on them by behaviour cloning, and every batch draws its
-share of rows from them (``agents.buffers.DemoMix``).
+CPU-seconds the run had spent when its round ended (``cpu_s``, ``training.budget.CpuClock``),
+and a schedule's ``budget_cpu_s`` or ``stop_at`` ends the run (``training.budget.StopRule``).
+With ``spec.demos`` the follower's laps (``training.demos``) fill a demonstration buffer before
+the first step, handed to the entrant (``use_demonstrations``: the BC warm start, and every
+batch's share of demonstration rows, ``agents.buffers.DemoMix``).
 """
 
 from __future__ import annotations
@@ -24,18 +28,16 @@ import math
 import time
 from collections.abc import Callable
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
-import torch
 from torch.utils.tensorboard import SummaryWriter
 
-from formula_tourney.agents.buffers import DemoMix, make_buffer
-from formula_tourney.agents.checkpoints import save_checkpoint
-from formula_tourney.agents.core import Agent, configure_torch
-from formula_tourney.agents.families import make_agent
-from formula_tourney.agents.mlp_update import BCLoss
-from formula_tourney.agents.noise import BrakeExplorationNoise, linear_epsilon
+from formula_tourney.agents.core import configure_torch
+from formula_tourney.agents.entrants import resolve_entrant
+from formula_tourney.agents.family_entrant import TB_EVERY_UPDATES
+from formula_tourney.agents.protocol import Entrant, EntrantSpaces
 from formula_tourney.results.folder import JobFolder
 from formula_tourney.results.layout import BEST_CHECKPOINT, LAST_CHECKPOINT
 from formula_tourney.results.metrics import model_clean_lap_s
@@ -62,27 +64,59 @@ class DivergedError(RuntimeError):
     """A loss became NaN or infinite: the run is unusable and is reported as failed."""
 
 
+class EntrantError(RuntimeError):
+    """An entrant returned an unusable action (wrong shape, not numeric, NaN or infinite): the
+    job fails with a one-line reason naming the entrant, before any env sees the action."""
+
+
 def _nan_to_none(x: float) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
 
 
-def _greedy_actions(agent: Agent, windows: np.ndarray) -> np.ndarray:
-    """mu(s) of every car in one actor forward ``(N, w, D) -> (N, 3)``: 6-12 us per car at 8-32
-    cars against ~40 us for one ``agent.act`` per car (400-300 actor, one thread, measured)."""
-    with torch.no_grad():
-        return agent.actor(torch.from_numpy(windows).to(agent.device)).cpu().numpy()
+def checked_actions(entrant: Entrant, actions: Any, cars: int, action_dim: int) -> np.ndarray:
+    """``actions`` as an array if it is one action per car, numeric and finite; else
+    EntrantError naming the entrant. One ``np.isfinite`` over the array: a few microseconds."""
+    out = actions if isinstance(actions, np.ndarray) else np.asarray(actions)
+    if out.shape != (cars, action_dim) or out.dtype.kind not in "fiu":
+        raise EntrantError(
+            f"entrant {entrant.label} returned actions of shape {out.shape} and dtype "
+            f"{out.dtype}, not ({cars}, {action_dim}) numbers"
+        )
+    if not np.isfinite(out).all():
+        raise EntrantError(f"entrant {entrant.label} returned a NaN or infinite action")
+    return out
 
 
-def train(
-    spec: RunSpec, out_dir: str | Path, progress: Progress | None = None
-) -> dict[str, Any]:
+class _TestDriver:
+    """The entrant as ``evaluate.run_test_episode`` drives it (``cfg.window``, ``act_eval`` of
+    one window): its greedy ``act`` on a batch of one, checked like every action."""
+
+    def __init__(self, entrant: Entrant, action_dim: int) -> None:
+        self.entrant = entrant
+        self.action_dim = action_dim
+        self.cfg = SimpleNamespace(window=entrant.window)
+
+    def act_eval(self, window: np.ndarray) -> np.ndarray:
+        actions = self.entrant.act(window[None])
+        return checked_actions(self.entrant, actions, 1, self.action_dim)[0]
+
+
+def _save_model(entrant: Entrant, path: Path, extra: dict[str, Any]) -> None:
+    """``entrant.save``; ours also write the run's metadata into the checkpoint."""
+    if getattr(entrant, "saves_metadata", False):
+        entrant.save(path, extra=extra)  # type: ignore[call-arg]
+    else:
+        entrant.save(path)
+
+
+def train(spec: RunSpec, out_dir: str | Path, progress: Progress | None = None) -> dict[str, Any]:
     """Train ``spec`` and write its job folder under ``out_dir``; returns the summary.
 
     ``progress(dict(episode=, episodes=, best_lap_s=, env_steps=, updates=, seconds=, cpu_s=))``
     is called after each finished (car-)episode; if it returns ``False`` the run stops early
     (pruned trials) and still writes its summary, as it does when its :class:`StopRule` says so.
     ``env_steps`` counts stored transitions (car-steps) over all cars; ``cpu_s`` the CPU-seconds
-    since training started. Raises DivergedError on NaN losses.
+    since training started. Raises DivergedError on NaN losses, EntrantError on a bad action.
     """
     agent_cfg = spec.agent
     schedule = spec.schedule
@@ -95,8 +129,9 @@ def train(
 
     # --- seeding: one block ------------------------------------------------------------------
     configure_torch(spec.threads)
-    # spawn(4)'s first three children are spawn(3)'s: adding the demo stream moved no run
-    env_seq, noise_seq, buf_seq, demo_seq = np.random.SeedSequence(spec.seed).spawn(4)
+    # spawn(4)'s first three children are spawn(3)'s: adding the demo stream moved no run; the
+    # entrant draws its noise and buffer streams from children 1 and 2 itself (family_entrant)
+    env_seq, _noise_seq, _buf_seq, demo_seq = np.random.SeedSequence(spec.seed).spawn(4)
     rng = np.random.default_rng(env_seq)
     cars = schedule.cars
 
@@ -111,42 +146,39 @@ def train(
     act_space = first_env.action_space if single else first_env.single_action_space
     obs_dim = int(np.prod(obs_space.shape))
     action_dim = int(np.prod(act_space.shape))
-    agent = make_agent(agent_cfg, obs_dim, action_dim, device=spec.device, seed=spec.seed)
-    buffer = make_buffer(
-        agent_cfg.buffer_size, obs_dim, action_dim, prioritized=agent_cfg.prioritized,
-        gamma=agent_cfg.gamma, n_step=agent_cfg.n_step, window=agent_cfg.window,
-        bootstrap_on_truncation=agent_cfg.adopted_target, seed=buf_seq,  # type: ignore[arg-type]
-        alpha=agent_cfg.per_alpha, beta=agent_cfg.per_beta0, lambda3=agent_cfg.per_lambda3,
-        eps=agent_cfg.per_eps, lanes=cars,
+    spaces = EntrantSpaces(
+        obs_dim=obs_dim, action_dim=action_dim,
+        action_low=np.asarray(act_space.low, np.float32).reshape(-1),
+        action_high=np.asarray(act_space.high, np.float32).reshape(-1), cars=cars,
     )  # fmt: skip
-    noise_seeds = [noise_seq] if cars == 1 else noise_seq.spawn(cars)
-    noises = [
-        BrakeExplorationNoise(
-            np.random.default_rng(seq), agent_cfg.ou_theta, agent_cfg.ou_sigma,
-            agent_cfg.noise_prob, agent_cfg.brake_explore_prob, agent_cfg.brake_explore_mean,
-            agent_cfg.brake_explore_sigma, agent_cfg.brake_explore_hold_steps, action_dim,
-        )
-        for seq in noise_seeds
-    ]  # fmt: skip
+    entrant_cls, settings = resolve_entrant(spec)
+    entrant = entrant_cls.build(settings, spaces, spec.seed, spec.device)
+    driver = _TestDriver(entrant, action_dim)
 
     # --- demonstrations: a second buffer every batch draws from, and the BC warm start -------
-    sampler: Any = buffer  # what batches are drawn from
-    priority_sink: Any = buffer  # what agent.update hands PER priorities to
     demo_summary: dict[str, Any] | None = None
     demo_seconds = 0.0  # driving and cloning count as training time (``seconds``)
-    bc_loss: BCLoss | None = None  # cloning in the actor's loss, all run long
     if spec.demos is not None:
+        use_demonstrations = getattr(entrant, "use_demonstrations", None)
+        if use_demonstrations is None:
+            raise EntrantError(f"entrant {entrant.label} does not learn from demonstrations")
         t_demo = time.perf_counter()
         demos = collect_demonstrations(spec, envs, obs_dim, action_dim, seed=demo_seq)
-        mix = DemoMix(buffer, demos.buffer, spec.demos.demo_rows(agent_cfg.batch_size))
-        sampler, priority_sink = mix, mix.priorities(agent_cfg.batch_size)
         demo_summary = demos.summary(spec.key_track)
+        warm_start = None
         if spec.demos.bc_steps > 0:
-            bc = behaviour_clone(agent, demos.buffer, spec.demos.bc_steps,
-                                 agent_cfg.batch_size, spec.demos.bc_lr)  # fmt: skip
+            bc_steps, bc_lr = spec.demos.bc_steps, spec.demos.bc_lr
+
+            def warm_start(agent: Any) -> tuple[float, float]:
+                return behaviour_clone(agent, demos.buffer, bc_steps, agent_cfg.batch_size,
+                                       bc_lr)  # fmt: skip
+
+        bc = use_demonstrations(
+            demos.buffer, spec.demos.demo_rows(agent_cfg.batch_size), spec.demos.bc_weight,
+            spec.demos.bc_q_filter, warm_start,
+        )  # fmt: skip
+        if bc is not None:
             demo_summary.update(bc_mse_before=bc[0], bc_mse_after=bc[1])
-        if spec.demos.bc_weight > 0.0:  # RunSpec checked that every batch has demo rows
-            bc_loss = BCLoss(spec.demos.bc_weight, mix.demo_rows, spec.demos.bc_q_filter)
         demo_seconds = time.perf_counter() - t_demo
         stop_rule = stop_rule.with_demonstrator(demo_summary.get("lap_s"))
 
@@ -163,11 +195,13 @@ def train(
     key_track = spec.key_track
     best_key_lap = math.inf
     env_steps = 0
-    update_credit = 0.0
-    # learning starts at the transition that reaches learning_starts with a batch stored
-    learn_from = max(agent_cfg.learning_starts, agent_cfg.batch_size)
+    logged_updates = 0  # the update count at the last TensorBoard loss point
     t0 = time.perf_counter() - demo_seconds
     episode = 0
+
+    def updates() -> int:
+        """The entrant's gradient updates so far, where it counts them (ours do)."""
+        return int(getattr(entrant, "updates", 0))
 
     def run_tests() -> None:
         nonlocal best_key_lap
@@ -176,14 +210,13 @@ def train(
         ckpt_rel = ""
         if schedule.save_test_checkpoints:
             ckpt_rel = folder.checkpoint_rel(f"ep-{episode}.pt")
-            save_checkpoint(
-                agent, folder.path / ckpt_rel, extra={"episode": episode, "run_spec": spec_json}
-            )
+            _save_model(entrant, folder.path / ckpt_rel,
+                        {"episode": episode, "run_spec": spec_json})  # fmt: skip
         for name in spec.test_tracks:
             env = test_envs.get(name) or test_envs.setdefault(name, envs.make(name, test=True))
             starts = start_positions(envs.tracks[name].length_m, schedule.test_starts)
             drives = [
-                run_test_episode(agent, env, name, s0, seed=drive_seed(spec.seed, k))
+                run_test_episode(driver, env, name, s0, seed=drive_seed(spec.seed, k))
                 for k, s0 in enumerate(starts)
             ]
             for drive in drives:
@@ -191,8 +224,15 @@ def train(
                 test_table.append(tests_row(drive, episode, env_steps, ckpt_rel, limit))
                 lap_table.extend(laps_rows(drive, episode))
             grip_tests, grip_laps = other_grip_tests(  # schedule.test_grip_scales; tables only
-                agent, envs, name, test_envs, episode=episode, env_steps=env_steps,
-                checkpoint=ckpt_rel, run_seed=spec.seed)
+                driver,
+                envs,
+                name,
+                test_envs,
+                episode=episode,
+                env_steps=env_steps,
+                checkpoint=ckpt_rel,
+                run_seed=spec.seed,
+            )
             grip_test_table.extend(grip_tests)
             lap_table.extend(grip_laps)
             # the model's clean lap, as every table and promotion counts it (results.metrics)
@@ -206,87 +246,75 @@ def train(
                 writer.add_scalar(f"test/best_lap_s/{name}", best_here, env_steps)
             if name == key_track and best_here < best_key_lap:
                 best_key_lap = best_here
-                save_checkpoint(
-                    agent, folder.checkpoint_path(BEST_CHECKPOINT),
-                    extra={"episode": episode, "best_lap_s": best_here, "track": name,
-                           "run_spec": spec_json},
+                _save_model(
+                    entrant, folder.checkpoint_path(BEST_CHECKPOINT),
+                    {"episode": episode, "best_lap_s": best_here, "track": name,
+                     "run_spec": spec_json},
                 )  # fmt: skip
         cpu_s = clock.seconds()  # the round's CPU-seconds: what its milestones are timed at
         for rows, first in zip(round_rows, first_rows, strict=True):
             for row in rows[first:]:
                 row["cpu_s"] = cpu_s
         # last.pt is refreshed at every test (a crashed run can still be inspected) and at the end
-        save_checkpoint(
-            agent,
-            folder.checkpoint_path(LAST_CHECKPOINT),
-            extra={"episode": episode, "run_spec": spec_json},
-        )
+        _save_model(entrant, folder.checkpoint_path(LAST_CHECKPOINT),
+                    {"episode": episode, "run_spec": spec_json})  # fmt: skip
         _write_tables()
 
     def _write_tables() -> None:
         folder.write_tables(episodes_rows, test_table + grip_test_table, lap_table)
 
-    def learn(stored: int) -> None:
-        """Earn updates for the ``stored`` transitions of this step and spend them."""
-        nonlocal update_credit
-        eligible = min(stored, env_steps - learn_from + 1)
-        if eligible <= 0 or len(buffer) < agent_cfg.batch_size:
+    def learn() -> None:
+        """One ``entrant.update``: its losses checked, logged every TB_EVERY_UPDATES updates."""
+        nonlocal logged_updates
+        losses = entrant.update(env_steps)
+        if not losses:
             return
-        update_credit += eligible * agent_cfg.updates_per_step  # 1 * x == x: N = 1 unchanged
-        while update_credit >= 1.0:
-            update_credit -= 1.0
-            if agent_cfg.prioritized:
-                frac = min(1.0, agent.updates / agent_cfg.per_beta_steps)
-                buffer.beta = agent_cfg.per_beta0 + (1.0 - agent_cfg.per_beta0) * frac
-            stats = agent.update(sampler.sample(agent_cfg.batch_size), priority_sink, bc=bc_loss)
-            if not (math.isfinite(stats.critic_loss) and math.isfinite(stats.actor_loss)):
-                writer.close()
-                _write_tables()
-                raise DivergedError(
-                    f"{spec.variant} seed {spec.seed}: loss became {stats.critic_loss} / "
-                    f"{stats.actor_loss} at update {agent.updates}, episode {episode + 1}"
-                )
-            if agent.updates % 250 == 0:
-                writer.add_scalar("loss/critic", stats.critic_loss, agent.updates)
-                writer.add_scalar("loss/actor", stats.actor_loss, agent.updates)
-                writer.add_scalar("q/mean", stats.q_mean, agent.updates)
-                writer.add_scalar("q/td_abs", stats.td_abs_mean, agent.updates)
+        if not all(math.isfinite(v) for v in losses.values()):
+            writer.close()
+            _write_tables()
+            shown = " / ".join(f"{k} {v}" for k, v in losses.items() if k != "updates")
+            raise DivergedError(
+                f"{spec.variant} seed {spec.seed}: {entrant.label}: loss became {shown} at "
+                f"update {updates()}, episode {episode + 1}"
+            )
+        count = updates()
+        if count // TB_EVERY_UPDATES > logged_updates // TB_EVERY_UPDATES:
+            for key, value in losses.items():
+                if key != "updates":
+                    writer.add_scalar(f"loss/{key}", value, count)
+            logged_updates = count
 
     collector: SingleCarCollector | VectorCollector
     reward_rule = RewardRule.of(agent_cfg)
     if cars == 1:
-        collector = SingleCarCollector(train_envs, spec.train_tracks, rng, buffer,
-                                       agent_cfg.window, reward_rule)  # fmt: skip
+        collector = SingleCarCollector(train_envs, spec.train_tracks, rng, None,
+                                       entrant.window, reward_rule)  # fmt: skip
     else:
         collector = VectorCollector(
             list(train_envs.items()), [int(rng.integers(2**31 - 1)) for _ in train_envs],
-            buffer, agent_cfg.window, reward_rule,
+            None, entrant.window, reward_rule,
         )  # fmt: skip
     stopped_early = False
     stopped_by: str | None = None
-    epsilon = 1.0
-    samples_its_policy = not agent_cfg.uses_action_noise  # decided once, not every step
     last = False
     while not last and not stopped_early:
         for car in collector.started:
-            noises[car].reset()
-        epsilon = linear_epsilon(env_steps, agent_cfg.exploration_steps, agent_cfg.epsilon_floor)
-        if samples_its_policy:  # SAC explores by sampling its own policy
-            actions = [agent.explore(window) for window in collector.windows]
-        elif cars == 1:
-            actions = [noises[0](agent.act(collector.windows[0]), epsilon)[0]]
-        else:
-            greedy = _greedy_actions(agent, collector.windows)
-            actions = [noises[car](greedy[car], epsilon)[0] for car in range(cars)]
+            entrant.episode_started(car)
+        windows = collector.windows
+        if cars == 1:
+            windows = windows[0][None]
+        actions = checked_actions(entrant, entrant.explore(windows, env_steps), cars, action_dim)
         finished = collector.step(actions)
         env_steps += collector.stored
-        learn(collector.stored)
+        entrant.observe(collector.transitions)
+        learn()
         for ended in finished:
             episode += 1
             seconds = time.perf_counter() - t0
+            epsilon = float(getattr(entrant, "epsilon", math.nan))
             episodes_rows.append({
                 "episode": episode, "track": ended.track, "reward": ended.reward,
-                "steps": ended.steps, "env_steps": env_steps, "updates": agent.updates,
+                "steps": ended.steps, "env_steps": env_steps, "updates": updates(),
                 "laps": ended.laps, "best_lap_s": ended.best_lap_s, "damage": ended.damage,
                 "termination": ended.termination, "epsilon": epsilon, "seconds": seconds,
             })  # fmt: skip
@@ -303,7 +331,7 @@ def train(
                 answer = progress({
                     "episode": episode, "episodes": schedule.episodes,
                     "best_lap_s": _nan_to_none(best_key_lap), "env_steps": env_steps,
-                    "updates": agent.updates, "seconds": time.perf_counter() - t0,
+                    "updates": updates(), "seconds": time.perf_counter() - t0,
                     "cpu_s": cpu_s,
                 })  # fmt: skip
                 if answer is False:
@@ -316,11 +344,8 @@ def train(
     if stopped_early and not test_table:
         run_tests()
     last_episode = episode
-    save_checkpoint(
-        agent,
-        folder.checkpoint_path(LAST_CHECKPOINT),
-        extra={"episode": last_episode, "run_spec": spec_json},
-    )
+    _save_model(entrant, folder.checkpoint_path(LAST_CHECKPOINT),
+                {"episode": last_episode, "run_spec": spec_json})  # fmt: skip
     _write_tables()
     writer.close()
     key_rows = [r for r in test_table if r["track"] == key_track]
@@ -332,7 +357,7 @@ def train(
         "finished": bool(any(r["finished"] for r in key_rows)),
         "episodes": last_episode,
         "env_steps": env_steps,
-        "updates": agent.updates,
+        "updates": updates(),
         "seconds": time.perf_counter() - t0,
         "cpu_s": clock.seconds(),
         "stopped_early": stopped_early,
