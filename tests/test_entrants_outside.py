@@ -17,7 +17,13 @@ import pytest
 from formula_tourney.agents.outside.naming import OutsideEntrant
 from formula_tourney.errors import UserInputError
 from formula_tourney.results.folder import JobFolder
+from formula_tourney.race.entrants import bot_entrant, model_entrant
+from formula_tourney.race.run import run_race
+from formula_tourney.race.settings import RaceSettings
 from formula_tourney.results.layout import LAST_CHECKPOINT
+from formula_tourney.sim.catalog import load_track
+from formula_tourney.training.checkpoint import load_run_checkpoint
+from formula_tourney.training.replay import replay
 from formula_tourney.tourney.api import run_tournament
 from formula_tourney.tourney.runner import FAULTS_ENV
 
@@ -71,11 +77,21 @@ def test_example_agent_trains_in_a_tournament_and_its_model_loads(tmp_path: Path
     folder = JobFolder(tmp_path / "res/byo/p1/Tiny-MOT/seed-0")
     assert "outside entrant examples.tiny_sac:TinySAC" in folder.beyond_paper()
     assert len(folder.table("episodes")) == 2 and len(folder.table("tests")) >= 1
-    from examples.tiny_sac import TinySAC
-
-    model = TinySAC.load(folder.checkpoint_path(LAST_CHECKPOINT), "cpu")
-    action = model.act(np.zeros((1, 1, model.spaces.obs_dim), np.float32))
-    assert action.shape == (1, 3) and np.isfinite(action).all()
+    last = folder.checkpoint_path(LAST_CHECKPOINT)
+    # races, replays and eval load it through its own class, named by the job's run spec
+    model, spec, _ = load_run_checkpoint(last)
+    assert spec.outside is not None and model.label == "TinySAC (examples/tiny_sac.py)"
+    race = run_race([model_entrant(last, "oval"), bot_entrant("follower", load_track("oval"),
+                                                              None)],  # fmt: skip
+                    RaceSettings(laps=1, lap_limit_s=5.0))
+    assert [r["name"] for r in race.rows if r["kind"] == "model"] == ["Tiny-MOT/seed-0"]
+    drive = replay(last, max_steps=20)
+    assert drive["track"] == "oval" and drive["checkpoint"] == str(last)
+    # the same file outside its job folder is not read (SB3's loader unpickles)
+    stray = tmp_path / "stray.pt"
+    stray.write_bytes(last.read_bytes())
+    with pytest.raises(UserInputError, match="stray.pt"):
+        load_run_checkpoint(stray)
 
 
 def test_each_fault_fails_only_its_job(tmp_path: Path) -> None:
@@ -145,8 +161,16 @@ def test_sb3_sac_and_crossq_train_through_the_adapter(tmp_path: Path) -> None:
         folder = JobFolder(tmp_path / f"res/byo/p1/{name}-MOT/seed-0")
         assert any(b.startswith(f"outside entrant {label}") for b in folder.beyond_paper())
         assert len(folder.table("episodes")) == 2
-        model = SB3Entrant.load(folder.checkpoint_path(LAST_CHECKPOINT), "cpu")
+        last = folder.checkpoint_path(LAST_CHECKPOINT)
+        model = SB3Entrant.load(last, "cpu")
         assert model.act(np.zeros((1, 1, model.spaces.obs_dim), np.float32)).shape == (1, 3)
+        driver, _spec, _ = load_run_checkpoint(last)
+        assert driver.label.startswith(label) and driver.act_eval(
+            np.zeros((1, model.spaces.obs_dim), np.float32)).shape == (3,)  # fmt: skip
+        stray = tmp_path / f"{name}.zip"
+        stray.write_bytes(last.read_bytes())
+        with pytest.raises(UserInputError, match="cannot be read|not a formula-tourney"):
+            load_run_checkpoint(stray)
         # SB3 wrote nothing of its own: no logs, no monitor files beside the job's
         assert not list(folder.path.rglob("*.monitor.csv")) and not list(
             folder.path.rglob("progress.csv"))  # fmt: skip
