@@ -16,16 +16,16 @@ import pytest
 
 from formula_tourney.agents.outside.naming import OutsideEntrant
 from formula_tourney.errors import UserInputError
-from formula_tourney.results.folder import JobFolder
 from formula_tourney.race.entrants import bot_entrant, model_entrant
 from formula_tourney.race.run import run_race
 from formula_tourney.race.settings import RaceSettings
+from formula_tourney.results.folder import JobFolder
 from formula_tourney.results.layout import LAST_CHECKPOINT
 from formula_tourney.sim.catalog import load_track
-from formula_tourney.training.checkpoint import load_run_checkpoint
-from formula_tourney.training.replay import replay
 from formula_tourney.tourney.api import run_tournament
 from formula_tourney.tourney.runner import FAULTS_ENV
+from formula_tourney.training.checkpoint import load_run_checkpoint
+from formula_tourney.training.replay import replay
 
 REPO = Path(__file__).resolve().parents[1]
 
