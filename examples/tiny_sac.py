@@ -83,7 +83,7 @@ class TinySAC:
         self.opt_alpha = torch.optim.Adam([self.log_alpha], lr=s.lr)
         self.buf = {k: np.zeros((s.buffer_size, n), np.float32) for k, n in
                     (("obs", o), ("act", a), ("rew", 1), ("next", o), ("done", 1))}  # fmt: skip
-        self.size = self.pos = self.stored = 0
+        self.size = self.pos = self.stored = self.updates = 0
 
     @classmethod
     def settings_model(cls) -> type[BaseModel]:
@@ -142,6 +142,7 @@ class TinySAC:
         with torch.no_grad():
             for p, pt in zip(self.q.parameters(), self.q_target.parameters(), strict=True):
                 pt.mul_(1 - self.s.tau).add_(self.s.tau * p)
+        self.updates += 1
         return {"critic": q_loss.item(), "actor": actor_loss.item(), "alpha": alpha_loss.item()}
 
     def episode_started(self, car: int) -> None:
@@ -174,7 +175,7 @@ class TinySAC:
         return {**{n: getattr(self, n).state_dict() for n in nets},
                 "log_alpha": self.log_alpha.detach().clone(),
                 "buf": {k: torch.from_numpy(v[: self.size].copy()) for k, v in self.buf.items()},
-                "counters": [self.size, self.pos, self.stored],
+                "counters": [self.size, self.pos, self.stored, self.updates],
                 "torch_rng": torch.get_rng_state(),
                 "np_rng": json.dumps(self.rng.bit_generator.state)}  # fmt: skip
 
@@ -183,7 +184,7 @@ class TinySAC:
             getattr(self, n).load_state_dict(state[n])
         with torch.no_grad():
             self.log_alpha.copy_(state["log_alpha"])
-        self.size, self.pos, self.stored = state["counters"]
+        self.size, self.pos, self.stored, self.updates = state["counters"]
         for k, v in state["buf"].items():
             self.buf[k][: self.size] = v.numpy()
         torch.set_rng_state(state["torch_rng"])

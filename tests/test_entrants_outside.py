@@ -211,3 +211,22 @@ def test_labels_name_the_library_and_version() -> None:
 
     assert OutsideEntrant(sb3="SAC").label() == f"sb3 {stable_baselines3.__version__} SAC"
     assert OutsideEntrant(impl="examples.tiny_sac:TinySAC").label() == "examples.tiny_sac:TinySAC"
+
+
+def test_the_cost_estimate_drives_an_outside_entrant_to_learn_its_schedule() -> None:
+    from formula_tourney.tourney.estimate.calibrate import calibrate
+    from formula_tourney.tourney.estimate.model import job_cost
+    from formula_tourney.training.run_spec import build_run_spec
+
+    spec = build_run_spec(
+        variant="Tiny", outside={"impl": "examples.tiny_sac:TinySAC",
+                                 "settings": {"hidden": 16, "batch_size": 16,
+                                              "learning_starts": 40}},
+        train_tracks=["oval"], schedule={"episodes": 10, "max_steps": 40, "test_starts": 1},
+    )  # fmt: skip
+    rates = calibrate(spec, seconds=0.3, chunk_steps=20)
+    # TinySAC's first update comes at its 40th stored step (step index 39 of the loop)
+    assert rates.learn_from_steps == 39
+    assert rates.update.mean_s > 0 and rates.env_step.mean_s > 0
+    cost = job_cost(spec, rates)
+    assert cost.updates == pytest.approx(max(0.0, cost.env_steps - 39 + 1))

@@ -114,5 +114,9 @@ def _one_line(err: BaseException) -> str:
 
 def _problems(err: pydantic.ValidationError) -> str:
     """Pydantic's errors as one line: ``key: problem`` joined by ``; ``."""
-    return "; ".join(f"{'.'.join(str(x) for x in e['loc']) or '(settings)'}: "
-                     f"{_one_line(e['msg'])}" for e in err.errors())  # fmt: skip
+    out = []
+    for e in err.errors():
+        where = ".".join(str(x) for x in e["loc"])
+        text = _one_line(e["msg"].removeprefix("Value error, "))
+        out.append(f"{where}: {text}" if where else text)
+    return "; ".join(out)

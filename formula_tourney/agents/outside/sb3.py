@@ -201,6 +201,11 @@ class SB3Entrant:
         self.last_next_obs = np.zeros((spaces.cars, spaces.obs_dim), np.float32)
         self.last_dones = np.zeros(spaces.cars, dtype=bool)
 
+    @property
+    def updates(self) -> int:
+        """SB3's count of gradient updates (the tables' ``updates`` column)."""
+        return int(self.model._n_updates)
+
     # ---------------------------------------------------------------------------- protocol
     @classmethod
     def settings_model(cls) -> type[pydantic.BaseModel]:
