@@ -10,10 +10,10 @@ replay buffer exactly as ``training.loop.train`` does, then times, for about ``s
 - one real test episode (``training.evaluate.run_test_episode``) and one checkpoint save.
 
 Each is timed in chunks, so the spread between chunks gives the rate's standard error. One
-thread, as a worker runs (``configure_torch(spec.threads)``). An outside entrant is driven as
-the loop drives it instead (:func:`calibrate_outside`): its learning schedule is its own. Only single-car runs are measured
+thread, as a worker runs (``configure_torch(spec.threads)``). Only single-car runs are measured
 as such; with ``schedule.cars > 1`` the per-car-step rates of one car are used (vector envs
-step cars faster, so the estimate errs high).
+step cars faster, so the estimate errs high). An outside entrant is driven as the loop drives
+it instead (:func:`calibrate_outside`): its learning schedule is its own.
 """
 
 from __future__ import annotations
