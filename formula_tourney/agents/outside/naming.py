@@ -4,9 +4,9 @@ One model (:class:`OutsideEntrant`) holds the three forms, so a tournament file,
 job's ``config.json`` carry the same thing, and :func:`resolve` is the one place that turns it
 into an entrant class and the settings that class validates:
 
-- ``impl = "package.module:Class"`` with ``settings = {...}``: a class importable where the
-  jobs run (the current folder is on the path of ``formula-tourney``'s workers, as for any
-  Python module);
+- ``impl = "package.module:Class"`` with ``settings = {...}``: a class importable from the
+  current folder or the installed packages (the current folder goes first on the import path,
+  as ``python -m`` puts it, also for the ``formula-tourney`` script and its workers);
 - ``entry = "name"`` with ``settings = {...}``: an entry point an installed package declares in
   the group ``formula_tourney.entrants`` (``importlib.metadata.entry_points``);
 - ``sb3 = "SAC"`` or ``sb3_contrib = "CrossQ"`` with ``kwargs = {...}``: the SB3 adapter
@@ -19,7 +19,9 @@ from __future__ import annotations
 
 import importlib
 import importlib.metadata
+import os
 import re
+import sys
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -122,6 +124,9 @@ def resolve(ref: OutsideEntrant) -> tuple[type, dict[str, Any]]:
 
 def _import_impl(impl: str) -> type:
     module_name, _, name = impl.partition(":")
+    here = os.getcwd()
+    if here not in sys.path:  # the console script, unlike ``python -m``, leaves it out
+        sys.path.insert(0, here)
     try:
         module = importlib.import_module(module_name)
     except Exception as err:  # noqa: BLE001 - outside code: any failure to import is the user's
