@@ -9,6 +9,14 @@ and the job folder; the entrant owns everything it learns with. Keeping that lin
 small module without torch, lets an outside package implement the interface by duck typing,
 and lets the loop check it with ``isinstance(x, Entrant)`` (the protocol is runtime-checkable:
 that check looks at the members' presence, not their signatures).
+
+Optional members the loop uses where an entrant has them (ours do; an outside one may skip
+them): ``updates`` (gradient updates so far: the episodes table's ``updates``, else 0),
+``epsilon`` (the exploration schedule's value: its ``epsilon`` column, else NaN),
+``saves_metadata = True`` with ``save(path, extra=...)`` (checkpoints that carry the run
+specification for ``eval`` and ``replay``), and ``use_demonstrations(buffer, demo_rows,
+bc_weight, bc_q_filter, warm_start)`` (a run with demonstrations; without it such a run fails
+with a reason naming the entrant).
 """
 
 from __future__ import annotations

@@ -17,7 +17,12 @@ import pandas as pd
 
 from formula_tourney.errors import UserInputError
 from formula_tourney.results import layout as L
-from formula_tourney.safeio import atomic_write_json, atomic_write_parquet, atomic_write_text
+from formula_tourney.safeio import (
+    atomic_write_bytes,
+    atomic_write_json,
+    atomic_write_parquet,
+    atomic_write_text,
+)
 
 
 class CorruptResultError(UserInputError):
@@ -45,8 +50,9 @@ def read_parquet_file(path: Path, what: str, columns: Sequence[str] | None = Non
     except FileNotFoundError:
         raise
     except Exception as err:  # pyarrow raises several types for a truncated or foreign file
-        raise CorruptResultError(f"{path}: cannot read {what} ({type(err).__name__}: {err})") \
-            from None
+        raise CorruptResultError(
+            f"{path}: cannot read {what} ({type(err).__name__}: {err})"
+        ) from None
     if columns is not None:
         missing = [c for c in columns if c not in frame.columns]
         if missing:
@@ -90,6 +96,11 @@ class JobFolder:
         """``best.pt``, ``last.pt`` or ``ep-<N>.pt`` inside ``checkpoints/``."""
         return self.path / L.CHECKPOINTS_DIR / name
 
+    @property
+    def resume_path(self) -> Path:
+        """The resume file of an unfinished training job (``training.resume``)."""
+        return self.path / L.RESUME_FILE
+
     def checkpoint_rel(self, name: str) -> str:
         """The checkpoint's path relative to the folder (as stored in tests.parquet)."""
         return f"{L.CHECKPOINTS_DIR}/{name}"
@@ -106,9 +117,7 @@ class JobFolder:
         return True
 
     # ------------------------------------------------------------------------------ writers
-    def write_config(
-        self, run_spec: Mapping[str, Any], beyond_paper: Sequence[str] = ()
-    ) -> Path:
+    def write_config(self, run_spec: Mapping[str, Any], beyond_paper: Sequence[str] = ()) -> Path:
         """config.json: the layout version, the run specification (plain JSON data) and what in
         it goes beyond the paper (empty for a replication), which every table labels."""
         return atomic_write_json(self.config_path, {
@@ -138,6 +147,14 @@ class JobFolder:
 
     def write_error(self, text: str) -> Path:
         return atomic_write_text(self.path / L.ERROR_FILE, text)
+
+    def write_resume(self, data: bytes) -> Path:
+        """The resume file, atomically: a kill while writing leaves the previous one."""
+        return atomic_write_bytes(self.resume_path, data)
+
+    def remove_resume(self) -> None:
+        """A finished job needs no resume file."""
+        self.resume_path.unlink(missing_ok=True)
 
     # ------------------------------------------------------------------------------ readers
     def _config_document(self) -> dict[str, Any]:
@@ -181,8 +198,9 @@ class JobFolder:
         for col in added:
             if col not in frame.columns:
                 frame[col] = float("nan")
-        grips = pd.to_numeric(frame["grip_scale"], errors="coerce") if "grip_scale" in added \
-            else None
+        grips = (
+            pd.to_numeric(frame["grip_scale"], errors="coerce") if "grip_scale" in added else None
+        )
         if grips is not None and grips.isna().any():  # no grip recorded: the run's own grip
             frame["grip_scale"] = grips.fillna(self.own_grip_scale())
         return frame[L.JOB_TABLES[name]]
@@ -196,8 +214,10 @@ class JobFolder:
             return 1.0
         grip = env.get("grip_scale", 1.0)
         if isinstance(grip, bool) or not isinstance(grip, int | float):
-            raise CorruptResultError(f"{self.config_path}: run_spec.env.grip_scale is {grip!r}, "
-                                     "not a number (a grip scale such as 1.0)")
+            raise CorruptResultError(
+                f"{self.config_path}: run_spec.env.grip_scale is {grip!r}, "
+                "not a number (a grip scale such as 1.0)"
+            )
         return float(grip)
 
     def at_own_grip(self, frame: pd.DataFrame) -> pd.DataFrame:
@@ -334,8 +354,10 @@ class RaceFolder:
         return atomic_write_json(self.series_path, dict(series))
 
     def write_standings(self, table: Mapping[str, Any], markdown: str) -> list[Path]:
-        return [atomic_write_json(self.path / L.RACE_STANDINGS_FILE, dict(table)),
-                atomic_write_text(self.path / L.RACE_STANDINGS_MD, markdown)]
+        return [
+            atomic_write_json(self.path / L.RACE_STANDINGS_FILE, dict(table)),
+            atomic_write_text(self.path / L.RACE_STANDINGS_MD, markdown),
+        ]
 
     def races(self) -> list[dict[str, Any]]:
         """Every race document, in race order."""

@@ -35,6 +35,9 @@ CHECKPOINTS_DIR = "checkpoints"
 TB_DIR = "tb"
 BEST_CHECKPOINT = "best.pt"
 LAST_CHECKPOINT = "last.pt"
+RESUME_FILE = "resume.pt"
+"""An unfinished training job's whole state (``training.resume``): a re-run continues from it,
+a finished job deletes it."""
 
 INDEX_FILE = "index.sqlite"
 ESTIMATE_FILE = "estimate.json"

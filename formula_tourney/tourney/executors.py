@@ -133,6 +133,10 @@ def _worker_main(slot: int, conn: Connection, parent_pid: int) -> None:
             conn.send(("failed", job.job_id, pid,
                        {"reason": failure_reason(exc),
                         "wall_s": time.perf_counter() - started}))
+            # SIGTERM reached a training job (training.resume): it saved its state at a step
+            # boundary and stopped; the worker was asked to end, so it ends now
+            if type(exc).__name__ == "Preempted":
+                return
         else:
             conn.send(("done", job.job_id, pid,
                        {"summary": summary, "wall_s": time.perf_counter() - started}))

@@ -47,6 +47,10 @@ class CpuClock:
     def seconds(self) -> float:
         return self.read() - self.started
 
+    def resume_from(self, cpu_s: float) -> None:
+        """Continue a resumed run's clock: :meth:`seconds` reads ``cpu_s`` now."""
+        self.started = self.read() - cpu_s
+
 
 def follower_lap_s(track_name: str, line: str, car: CarParams) -> float:
     """The follower bot's best clean lap of :data:`BOT_LAPS` on ``line`` of a track, in the

@@ -11,7 +11,9 @@ them there itself, as an entrant of ours does (``family_entrant.store_transition
 a calibration that drives scripted actions through the same ``step``).
 
 * :class:`SingleCarCollector` is the paper's loop: one env per train track, a track and a reset
-  seed drawn per episode.
+  seed drawn per episode. It keeps the generator's state at the episode's start and the
+  actions driven since, from which :meth:`SingleCarCollector.replay` puts a resumed run's car
+  back where it was (``training.resume``).
 * :class:`VectorCollector` drives ``N`` cars of ``FormulaRacingVectorEnv`` (one vector env per
   train track, the cars split as evenly as possible). The vector env's next-step autoreset
   returns a car's first observation on the step after its episode ended and ignores that car's
@@ -83,6 +85,8 @@ class SingleCarCollector:
 
     def _start(self) -> None:
         rng = self.rng
+        self.start_rng_state = rng.bit_generator.state  # what a resumed run starts from
+        self.episode_actions: list[np.ndarray] = []  # driven since the episode's start
         self.track = self.train_tracks[int(rng.integers(len(self.train_tracks)))]
         self.env = self.envs[self.track]
         self.obs, _ = self.env.reset(seed=int(rng.integers(2**31 - 1)))
@@ -99,6 +103,7 @@ class SingleCarCollector:
         end."""
         action = actions[0]
         next_obs, reward, terminated, truncated, info = self.env.step(action)
+        self.episode_actions.append(np.array(action))
         stored = self.reward_rule(float(reward), bool(terminated))
         self.transitions = [Transition(0, self.obs, action, stored, next_obs, bool(terminated),
                                        bool(truncated))]  # fmt: skip
@@ -120,6 +125,21 @@ class SingleCarCollector:
         self._start()
         self.started = [0]
         return [done]
+
+    def replay(self, actions: Sequence[np.ndarray]) -> None:
+        """Drive the current episode's first ``actions`` again, storing nothing: a resumed run
+        (``training.resume``) puts the car where it was, its window, reward and step count too.
+        The env must not end the episode on the way (it did not when they were recorded)."""
+        for action in actions:
+            next_obs, reward, terminated, truncated, _info = self.env.step(action)
+            if terminated or truncated:
+                raise ValueError("the replayed actions end the episode: not the recorded drive")
+            self.episode_actions.append(np.array(action))
+            self.steps += 1
+            self.reward += float(reward)
+            self.obs = next_obs
+            self.stack = self.window.push(next_obs)
+        self.started = [] if self.steps else [0]
 
 
 class VectorCollector:

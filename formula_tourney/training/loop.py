@@ -55,6 +55,16 @@ from formula_tourney.training.evaluate import (
     start_positions,
     tests_row,
 )
+from formula_tourney.training.resume import (
+    PREEMPTED,
+    Preempted,
+    preemption_requested,
+    read_resume,
+    refuse,
+    rows_from_plain,
+    sigterm_checkpoints,
+    write_resume,
+)
 from formula_tourney.training.run_spec import RunSpec
 
 Progress = Callable[[dict[str, Any]], Any]
@@ -109,7 +119,12 @@ def _save_model(entrant: Entrant, path: Path, extra: dict[str, Any]) -> None:
         entrant.save(path)
 
 
-def train(spec: RunSpec, out_dir: str | Path, progress: Progress | None = None) -> dict[str, Any]:
+def train(
+    spec: RunSpec,
+    out_dir: str | Path,
+    progress: Progress | None = None,
+    resume: bool | dict[str, Any] = True,
+) -> dict[str, Any]:
     """Train ``spec`` and write its job folder under ``out_dir``; returns the summary.
 
     ``progress(dict(episode=, episodes=, best_lap_s=, env_steps=, updates=, seconds=, cpu_s=))``
@@ -117,7 +132,19 @@ def train(spec: RunSpec, out_dir: str | Path, progress: Progress | None = None) 
     (pruned trials) and still writes its summary, as it does when its :class:`StopRule` says so.
     ``env_steps`` counts stored transitions (car-steps) over all cars; ``cpu_s`` the CPU-seconds
     since training started. Raises DivergedError on NaN losses, EntrantError on a bad action.
+
+    With ``resume`` True a resume file of this configuration in the folder is continued from
+    (``training.resume``), a dict is such a file's state already read
+    (``training.resume.read_resume``), False starts afresh. The run writes one every
+    ``schedule.resume_every_cpu_s`` and, raising Preempted, on SIGTERM.
     """
+    with sigterm_checkpoints():
+        return _train(spec, out_dir, progress, resume)
+
+
+def _train(
+    spec: RunSpec, out_dir: str | Path, progress: Progress | None, resume: bool | dict[str, Any]
+) -> dict[str, Any]:
     agent_cfg = spec.agent
     schedule = spec.schedule
     stop_rule = StopRule.of(spec)  # drives the bot to beat and warms up: before the clock
@@ -154,11 +181,22 @@ def train(spec: RunSpec, out_dir: str | Path, progress: Progress | None = None) 
     entrant_cls, settings = resolve_entrant(spec)
     entrant = entrant_cls.build(settings, spaces, spec.seed, spec.device)
     driver = _TestDriver(entrant, action_dim)
+    resumed = resume if isinstance(resume, dict) else read_resume(folder, spec) if resume else None
+    if resumed is not None:
+        try:
+            entrant.restore_training_state(resumed["entrant"])
+        except Exception as err:  # a file of this configuration whose state does not fit
+            raise refuse(folder, err) from None
+    saved: dict[str, Any] = resumed["loop"] if resumed is not None else {}
 
     # --- demonstrations: a second buffer every batch draws from, and the BC warm start -------
     demo_summary: dict[str, Any] | None = None
     demo_seconds = 0.0  # driving and cloning count as training time (``seconds``)
-    if spec.demos is not None:
+    if resumed is not None:  # the entrant's state holds the demonstrations and the cloning
+        demo_summary = saved["demo_summary"]
+        if demo_summary is not None:
+            stop_rule = stop_rule.with_demonstrator(demo_summary.get("lap_s"))
+    elif spec.demos is not None:
         use_demonstrations = getattr(entrant, "use_demonstrations", None)
         if use_demonstrations is None:
             raise EntrantError(f"entrant {entrant.label} does not learn from demonstrations")
@@ -187,17 +225,22 @@ def train(spec: RunSpec, out_dir: str | Path, progress: Progress | None = None) 
     folder.write_config(spec_json, spec.beyond_paper())
     writer = SummaryWriter(str(folder.tb_dir))
 
-    episodes_rows: list[dict[str, Any]] = []
-    test_table: list[dict[str, Any]] = []
-    grip_test_table: list[dict[str, Any]] = []  # the other test grips: written, not summarised
-    lap_table: list[dict[str, Any]] = []
-    best_traces: dict[str, float] = {}
+    tables = saved.get("tables", {})
+    episodes_rows: list[dict[str, Any]] = rows_from_plain(tables.get("episodes", []))
+    test_table: list[dict[str, Any]] = rows_from_plain(tables.get("tests", []))
+    # the other test grips: written, not summarised
+    grip_test_table: list[dict[str, Any]] = rows_from_plain(tables.get("grip_tests", []))
+    lap_table: list[dict[str, Any]] = rows_from_plain(tables.get("laps", []))
+    best_traces: dict[str, float] = dict(saved.get("best_traces", {}))
     key_track = spec.key_track
-    best_key_lap = math.inf
-    env_steps = 0
-    logged_updates = 0  # the update count at the last TensorBoard loss point
-    t0 = time.perf_counter() - demo_seconds
-    episode = 0
+    best_key_lap = float(saved.get("best_key_lap", math.inf))
+    env_steps = int(saved.get("env_steps", 0))
+    logged_updates = int(saved.get("logged_updates", 0))  # the count at the last TB loss point
+    t0 = time.perf_counter() - demo_seconds - float(saved.get("seconds", 0.0))
+    episode = int(saved.get("episode", 0))
+    if resumed is not None:
+        clock.resume_from(float(saved["cpu_s"]))
+        rng.bit_generator.state = saved["rng"]  # the current episode's start draws
 
     def updates() -> int:
         """The entrant's gradient updates so far, where it counts them (ours do)."""
@@ -289,15 +332,45 @@ def train(spec: RunSpec, out_dir: str | Path, progress: Progress | None = None) 
     if cars == 1:
         collector = SingleCarCollector(train_envs, spec.train_tracks, rng, None,
                                        entrant.window, reward_rule)  # fmt: skip
+        if resumed is not None:
+            collector.replay(list(np.asarray(saved["actions"])))
     else:
         collector = VectorCollector(
             list(train_envs.items()), [int(rng.integers(2**31 - 1)) for _ in train_envs],
             None, entrant.window, reward_rule,
         )  # fmt: skip
+    resume_every_cpu_s = schedule.resume_every_cpu_s
+    resumed_at_cpu_s = clock.seconds()
+
+    def save_resume() -> None:
+        """The resume file (``training.resume``): the entrant's state and the loop's."""
+        assert isinstance(collector, SingleCarCollector)
+        actions = collector.episode_actions
+        loop_state = {
+            "episode": episode, "env_steps": env_steps, "logged_updates": logged_updates,
+            "best_key_lap": best_key_lap, "best_traces": best_traces,
+            "seconds": time.perf_counter() - t0, "cpu_s": clock.seconds(),
+            "rng": collector.start_rng_state,
+            "actions": np.stack(actions) if actions else np.zeros((0, action_dim), np.float32),
+            "demo_summary": demo_summary,
+            "tables": {"episodes": episodes_rows, "tests": test_table,
+                       "grip_tests": grip_test_table, "laps": lap_table},
+        }  # fmt: skip
+        write_resume(folder, spec, entrant.training_state(), loop_state)
+
     stopped_early = False
     stopped_by: str | None = None
     last = False
     while not last and not stopped_early:
+        # a step boundary: the resume file on schedule and on SIGTERM (one car: resumable)
+        if preemption_requested():
+            if cars == 1:
+                save_resume()
+                raise Preempted(f"{PREEMPTED}: {folder.resume_path}")
+            raise Preempted(f"preempted: a run of {cars} cars starts again when run again")
+        if cars == 1 and clock.seconds() - resumed_at_cpu_s >= resume_every_cpu_s:
+            save_resume()
+            resumed_at_cpu_s = clock.seconds()
         for car in collector.started:
             entrant.episode_started(car)
         windows = collector.windows
@@ -367,6 +440,7 @@ def train(spec: RunSpec, out_dir: str | Path, progress: Progress | None = None) 
     if demo_summary is not None:  # who demonstrated: the report's "with demos" label needs it
         summary["demos"] = demo_summary
     folder.write_summary(summary)
+    folder.remove_resume()
     for e in list(train_envs.values()) + list(test_envs.values()):
         e.close()
     return summary

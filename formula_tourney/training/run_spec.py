@@ -176,6 +176,16 @@ class Schedule(_Frozen):
         "with the same observation. 0: the paper's solo FormulaRacing-v0. Needs cars = 1.",
         json_schema_extra=marks(added_in_layout=2),
     )
+    resume_every_cpu_s: float = Field(
+        300.0,
+        gt=0,
+        le=10**7,
+        description="Write the job's whole training state to its resume file (resume.pt) every "
+        "this many CPU-seconds, and on SIGTERM, so a killed, preempted or requeued job "
+        "continues where it was, bit for bit (training.resume). Runs of one car only; runs of "
+        "several cars start again. Changes no result.",
+        json_schema_extra=marks(added_in_layout=2),
+    )
 
 
 SCHEDULE_KEYS: tuple[str, ...] = tuple(Schedule.model_fields)
