@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from formula_tourney.agents.outside.naming import OutsideEntrant
@@ -230,3 +231,48 @@ def test_the_cost_estimate_drives_an_outside_entrant_to_learn_its_schedule() -> 
     assert rates.update.mean_s > 0 and rates.env_step.mean_s > 0
     cost = job_cost(spec, rates)
     assert cost.updates == pytest.approx(max(0.0, cost.env_steps - 39 + 1))
+
+
+class _Abandoned(Exception):
+    """Stands for a kill: the run is dropped mid-way, only its files remain."""
+
+
+@pytest.mark.parametrize("outside", [
+    {"impl": "examples.tiny_sac:TinySAC",
+     "settings": {"hidden": 16, "batch_size": 16, "learning_starts": 16}},
+    {"sb3": "SAC", "kwargs": {"learning_starts": 16, "batch_size": 16,
+                              "policy_kwargs": {"net_arch": [16, 16]}}},
+    {"sb3": "PPO", "kwargs": {"n_steps": 32, "batch_size": 16, "n_epochs": 2,
+                              "policy_kwargs": {"net_arch": [16, 16]}}},
+], ids=["TinySAC", "SB3-SAC", "SB3-PPO"])  # fmt: skip
+def test_an_abandoned_outside_run_resumes_to_the_uninterrupted_tables(
+    tmp_path: Path, ring_tracks: None, outside: dict
+) -> None:
+    """Its training_state (weights, optimisers, buffers, every RNG it draws from) resumes the
+    run mid-way to the very tables of the run left alone."""
+    if "sb3" in outside:
+        pytest.importorskip("stable_baselines3", reason="the [sb3] extra is not installed")
+    from formula_tourney.training import loop
+    from formula_tourney.training.run_spec import build_run_spec
+
+    spec = build_run_spec(
+        variant="X", outside=outside, train_tracks=["ring"], device="cpu", seed=4,
+        schedule={"episodes": 6, "max_steps": 60, "test_every_episodes": 2, "test_starts": 1,
+                  "test_max_steps": 60, "resume_every_cpu_s": 0.05},
+    )  # fmt: skip
+    loop.train(spec, tmp_path / "whole")
+    job = tmp_path / "resumed"
+
+    def abandon(info: dict) -> None:
+        if info["episode"] >= 3 and JobFolder(job).resume_path.exists():
+            raise _Abandoned
+
+    with pytest.raises(_Abandoned):
+        loop.train(spec, job, abandon)
+    loop.train(spec, job)
+    drop = ["seconds", "cpu_s", "wall_s"]
+    for name in ("episodes", "tests", "laps"):
+        a = JobFolder(tmp_path / "whole").table(name).drop(columns=drop, errors="ignore")
+        b = JobFolder(job).table(name).drop(columns=drop, errors="ignore")
+        pd.testing.assert_frame_equal(a, b, check_exact=True)
+    assert JobFolder(job).table("episodes")["updates"].iloc[-1] > 0
