@@ -20,6 +20,7 @@ from formula_tourney.errors import UserInputError
 from formula_tourney.race.entrants import bot_entrant, model_entrant
 from formula_tourney.race.run import run_race
 from formula_tourney.race.settings import RaceSettings
+from formula_tourney.report.load import load_tournament
 from formula_tourney.results.folder import JobFolder
 from formula_tourney.results.layout import LAST_CHECKPOINT
 from formula_tourney.sim.catalog import load_track
@@ -108,6 +109,9 @@ def test_each_fault_fails_only_its_job(tmp_path: Path) -> None:
     assert "NaN" in reasons["ReturnsNaN-MOT"]
     assert "shape (1, 4)" in reasons["WrongShape-MOT"]
     assert result["this_run"]["failed"] == 3
+    # the report names each failed job and why
+    problems = "\n".join(load_tournament(tmp_path / "res" / "byo").problems)
+    assert "p1/Raises-MOT/seed-0: failed (" in problems and "driver bug at step 0" in problems
 
 
 @pytest.mark.parametrize(("entry", "message"), [
