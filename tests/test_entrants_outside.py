@@ -280,3 +280,28 @@ def test_an_abandoned_outside_run_resumes_to_the_uninterrupted_tables(
         b = JobFolder(job).table(name).drop(columns=drop, errors="ignore")
         pd.testing.assert_frame_equal(a, b, check_exact=True)
     assert JobFolder(job).table("episodes")["updates"].iloc[-1] > 0
+
+
+def test_an_entry_point_names_an_installed_entrant(
+    tmp_path: Path, ring_tracks: None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A package's ``formula_tourney.entrants`` entry point (its dist-info on the path, as pip
+    installs it) is found, labelled with the distribution and trained."""
+    info = tmp_path / "site" / "my_driver-1.2.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: my-driver\nVersion: 1.2\n")
+    (info / "entry_points.txt").write_text(
+        "[formula_tourney.entrants]\ntiny = examples.tiny_sac:TinySAC\n")  # fmt: skip
+    monkeypatch.syspath_prepend(str(tmp_path / "site"))
+    from formula_tourney.training import loop
+    from formula_tourney.training.run_spec import build_run_spec
+
+    ref = OutsideEntrant(entry="tiny", settings={"hidden": 16, "learning_starts": 8,
+                                                 "batch_size": 8})  # fmt: skip
+    assert ref.label() == "tiny (my-driver 1.2)"
+    spec = build_run_spec(variant="tiny", outside=ref, train_tracks=["ring"], device="cpu",
+                          schedule={"episodes": 2, "max_steps": 30, "test_every_episodes": 2,
+                                    "test_starts": 1, "test_max_steps": 30})  # fmt: skip
+    summary = loop.train(spec, tmp_path / "job")
+    assert summary["episodes"] == 2 and summary["updates"] > 0
+    assert JobFolder(tmp_path / "job").beyond_paper()[0] == "outside entrant tiny (my-driver 1.2)"
