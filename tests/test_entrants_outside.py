@@ -305,3 +305,22 @@ def test_an_entry_point_names_an_installed_entrant(
     summary = loop.train(spec, tmp_path / "job")
     assert summary["episodes"] == 2 and summary["updates"] > 0
     assert JobFolder(tmp_path / "job").beyond_paper()[0] == "outside entrant tiny (my-driver 1.2)"
+
+
+def test_without_the_extra_an_sb3_entrant_names_how_to_install_it(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import importlib
+
+    from formula_tourney.agents.outside import sb3
+
+    real = importlib.import_module
+
+    def without_sb3(name: str, *args: object) -> object:
+        if name.startswith(("stable_baselines3", "sb3_contrib")):
+            raise ImportError(f"No module named {name!r}")
+        return real(name, *args)
+
+    monkeypatch.setattr(sb3.importlib, "import_module", without_sb3)
+    with pytest.raises(UserInputError, match=r"pip install formula-tourney\[sb3\]"):
+        sb3.algorithm_class("sb3_contrib", "CrossQ")
