@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import signal
@@ -70,13 +71,37 @@ def jobs(results: Path) -> dict[str, dict]:
     return out
 
 
-def test_example_agent_trains_in_a_tournament_and_its_model_loads(tmp_path: Path) -> None:
-    result = run_tournament(tournament(tmp_path, ["Tiny", "WIN1"]), workers=2,
-                            results_dir=tmp_path / "res")  # fmt: skip
-    assert result["this_run"]["failed"] == 0
-    rows = jobs(tmp_path / "res")
-    assert {r["status"] for r in rows.values()} == {"done"}
-    folder = JobFolder(tmp_path / "res/byo/p1/Tiny-MOT/seed-0")
+FAULTS = ("Raises", "ReturnsNaN", "WrongShape")
+SB3_VARIANTS = (
+    '[variants.SAC3]\nsb3 = "SAC"\nkwargs = { learning_starts = 16, batch_size = 16, '
+    'policy_kwargs = { net_arch = [16, 16] } }\n'
+    '[variants.CrossQ3]\nsb3_contrib = "CrossQ"\nkwargs = { learning_starts = 16, '
+    'batch_size = 16 }\n'
+)  # fmt: skip
+HAS_SB3 = all(importlib.util.find_spec(m) for m in ("stable_baselines3", "sb3_contrib"))
+
+
+@pytest.fixture(scope="module")
+def ran(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
+    """One tournament for the tests below (workers start once): the example agent, WIN1, the
+    three faulty entrants and, with the [sb3] extra, SB3's SAC and sb3-contrib's CrossQ."""
+    tmp = tmp_path_factory.mktemp("byo")
+    names = ["Tiny", "WIN1", *FAULTS]
+    more = "".join(f'[variants.{name}]\nimpl = "outside_entrants:{name}"\n' for name in FAULTS)
+    if HAS_SB3:
+        names += ["SAC3", "CrossQ3"]
+        more += SB3_VARIANTS
+    result = run_tournament(tournament(tmp, names, more), workers=2, results_dir=tmp / "res")
+    return tmp / "res", result
+
+
+def test_example_agent_trains_in_a_tournament_and_its_model_loads(
+    ran: tuple[Path, dict], tmp_path: Path
+) -> None:
+    results, _result = ran
+    rows = jobs(results)
+    assert rows["p1/Tiny-MOT/seed-0"]["status"] == rows["p1/WIN1-MOT/seed-0"]["status"] == "done"
+    folder = JobFolder(results / "byo/p1/Tiny-MOT/seed-0")
     assert "outside entrant examples.tiny_sac:TinySAC" in folder.beyond_paper()
     assert len(folder.table("episodes")) == 2 and len(folder.table("tests")) >= 1
     last = folder.checkpoint_path(LAST_CHECKPOINT)
@@ -96,21 +121,18 @@ def test_example_agent_trains_in_a_tournament_and_its_model_loads(tmp_path: Path
         load_run_checkpoint(stray)
 
 
-def test_each_fault_fails_only_its_job(tmp_path: Path) -> None:
-    more = "".join(f'[variants.{name}]\nimpl = "outside_entrants:{name}"\n'
-                   for name in ("Raises", "ReturnsNaN", "WrongShape"))  # fmt: skip
-    path = tournament(tmp_path, ["Tiny", "Raises", "ReturnsNaN", "WrongShape"], more)
-    result = run_tournament(path, workers=2, results_dir=tmp_path / "res")
-    rows = jobs(tmp_path / "res")
-    assert rows["p1/Tiny-MOT/seed-0"]["status"] == "done"
+def test_each_fault_fails_only_its_job(ran: tuple[Path, dict]) -> None:
+    results, result = ran
+    rows = jobs(results)
     reasons = {k.split("/")[1]: r["reason"] for k, r in rows.items() if r["status"] == "failed"}
-    assert set(reasons) == {"Raises-MOT", "ReturnsNaN-MOT", "WrongShape-MOT"}
+    assert set(reasons) == {f"{name}-MOT" for name in FAULTS}
     assert "driver bug at step 0" in reasons["Raises-MOT"]
     assert "NaN" in reasons["ReturnsNaN-MOT"]
     assert "shape (1, 4)" in reasons["WrongShape-MOT"]
     assert result["this_run"]["failed"] == 3
+    assert all(r["status"] == "done" for k, r in rows.items() if k.split("/")[1] not in reasons)
     # the report names each failed job and why
-    problems = "\n".join(load_tournament(tmp_path / "res" / "byo").problems)
+    problems = "\n".join(load_tournament(results / "byo").problems)
     assert "p1/Raises-MOT/seed-0: failed (" in problems and "driver bug at step 0" in problems
 
 
@@ -150,20 +172,16 @@ def test_the_cli_exits_2_with_one_line(tmp_path: Path) -> None:
     assert "has no class 'Nope'" in proc.stderr and not (tmp_path / "res").exists()
 
 
-def test_sb3_sac_and_crossq_train_through_the_adapter(tmp_path: Path) -> None:
-    pytest.importorskip("stable_baselines3", reason="the [sb3] extra is not installed")
-    pytest.importorskip("sb3_contrib", reason="the [sb3] extra (sb3-contrib) is not installed")
-    more = ('[variants.SAC3]\nsb3 = "SAC"\nkwargs = { learning_starts = 16, batch_size = 16, '
-            'policy_kwargs = { net_arch = [16, 16] } }\n'
-            '[variants.CrossQ3]\nsb3_contrib = "CrossQ"\nkwargs = { learning_starts = 16, '
-            'batch_size = 16 }\n')  # fmt: skip
-    result = run_tournament(tournament(tmp_path, ["SAC3", "CrossQ3"], more), workers=2,
-                            results_dir=tmp_path / "res")  # fmt: skip
-    assert result["this_run"]["failed"] == 0
+@pytest.mark.skipif(not HAS_SB3, reason="the [sb3] extra (stable-baselines3, sb3-contrib) is "
+                    "not installed")
+def test_sb3_sac_and_crossq_train_through_the_adapter(ran: tuple[Path, dict],
+                                                      tmp_path: Path) -> None:  # fmt: skip
+    results, _result = ran
     from formula_tourney.agents.outside.sb3 import SB3Entrant
 
     for name, label in (("SAC3", "sb3 "), ("CrossQ3", "sb3-contrib ")):
-        folder = JobFolder(tmp_path / f"res/byo/p1/{name}-MOT/seed-0")
+        folder = JobFolder(results / f"byo/p1/{name}-MOT/seed-0")
+        assert folder.is_finished()
         assert any(b.startswith(f"outside entrant {label}") for b in folder.beyond_paper())
         assert len(folder.table("episodes")) == 2
         last = folder.checkpoint_path(LAST_CHECKPOINT)
