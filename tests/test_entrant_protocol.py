@@ -207,6 +207,11 @@ def test_a_bad_action_fails_the_job_naming_the_entrant(
 
 def test_our_checkpoints_keep_their_format(tmp_path: Path, ring_tracks: None) -> None:
     loop.train(_spec(), tmp_path / "job")
-    agent, extra = load_checkpoint(tmp_path / "job" / "checkpoints" / "last.pt")
+    path = tmp_path / "job" / "checkpoints" / "last.pt"
+    agent, extra = load_checkpoint(path)
     assert extra["episode"] == 3 and extra["run_spec"]["variant"] == "WIN1"
     assert agent.updates > 0
+    entrant = FamilyEntrant.load(path, "cpu")  # drives what the checkpoint's agent drives
+    windows = np.random.default_rng(0).normal(size=(2, 1, agent.obs_dim)).astype(np.float32)
+    expected = np.stack([agent.act_eval(w) for w in windows])
+    np.testing.assert_array_equal(entrant.act(windows), expected)

@@ -31,7 +31,12 @@ from formula_tourney.results.layout import JOB_TABLES
 from formula_tourney.tourney.api import run_tournament
 from formula_tourney.tourney.store import Store
 from formula_tourney.training import loop
-from formula_tourney.training.resume import PREEMPTED, Preempted
+from formula_tourney.training.resume import (
+    PREEMPTED,
+    Preempted,
+    preemption_requested,
+    sigterm_checkpoints,
+)
 from formula_tourney.training.run_spec import RunSpec, build_run_spec
 
 MACHINE_TIME = {"seconds", "wall_s", "started_at", "finished_at", "worker_pid",
@@ -88,9 +93,10 @@ def _interrupt_after(episode: int, job: Path):  # noqa: ANN202 - a progress call
 
 @pytest.mark.parametrize(
     ("variant", "demos", "agent"),
-    [("WIN1", None, {}), ("PER40k", None, {}), ("SAC", None, {}),
+    [("WIN1", None, {}), ("PER40k", None, {}), ("SAC", None, {}), ("TD3", None, {}),
+     ("CrossQ", None, {}),
      ("WIN1", {"laps": 1, "line": "centre", "bc_steps": 5, "bc_weight": 0.5}, {})],
-    ids=["WIN1", "PER", "SAC", "demos"],
+    ids=["WIN1", "PER", "SAC", "TD3", "CrossQ", "demos"],
 )  # fmt: skip
 def test_an_abandoned_run_resumes_to_the_uninterrupted_tables(
     tmp_path: Path,
@@ -172,17 +178,51 @@ def test_sigterm_mid_episode_writes_the_resume_file_and_the_resumed_run_is_the_s
             os.kill(os.getpid(), signal.SIGTERM)
 
     monkeypatch.setattr(FamilyEntrant, "observe", terminate_mid_episode)
+    handler = signal.getsignal(signal.SIGTERM)
     with pytest.raises(Preempted, match=r"preempted \(resumable\)"):
         loop.train(spec, job)
     assert PREEMPTED == "preempted (resumable)"
     assert JobFolder(job).resume_path.exists() and not JobFolder(job).is_finished()
-    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # the loop's handler is gone
+    assert signal.getsignal(signal.SIGTERM) is handler  # the loop's handler is gone
     saved = torch.load(JobFolder(job).resume_path, weights_only=True)["loop"]
     assert saved["env_steps"] == sent[0] and len(saved["actions"]) > 0  # mid-episode
     loop.train(spec, job)
     assert f"resuming from {JobFolder(job).resume_path}: " in resume_log.text
     loop.train(spec, tmp_path / "whole")
     _assert_same_run(tmp_path / "whole", job)
+
+
+def test_sigterm_stops_a_run_of_several_cars_without_a_resume_file(
+    tmp_path: Path, ring_tracks: None
+) -> None:
+    """Several cars are mid-episode at different steps: such a run starts again when run
+    again, and says so."""
+    spec = build_run_spec(
+        variant="WIN1", overrides=SMALL, train_tracks=["ring"], device="cpu", seed=4,
+        schedule={"episodes": 6, "max_steps": 60, "test_every_episodes": 2, "test_starts": 1,
+                  "test_max_steps": 30, "cars": 2, "resume_every_cpu_s": 1e-6},
+    )  # fmt: skip
+
+    def terminate(info: dict) -> None:
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    with pytest.raises(Preempted, match="a run of 2 cars starts again when run again"):
+        loop.train(spec, tmp_path / "job", terminate)
+    assert not JobFolder(tmp_path / "job").resume_path.exists()
+
+
+def test_a_sigterm_that_no_step_saw_is_passed_on_after_the_run() -> None:
+    """A run that ends before a step boundary sees SIGTERM leaves the signal to the process's
+    own handler (a pool worker then ends), once the loop's handler is gone."""
+    received: list[int] = []
+    previous = signal.signal(signal.SIGTERM, lambda signum, _frame: received.append(signum))
+    try:
+        with sigterm_checkpoints():
+            os.kill(os.getpid(), signal.SIGTERM)
+            assert preemption_requested() and received == []
+        assert received == [signal.SIGTERM] and not preemption_requested()
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def test_a_resume_file_of_another_config_or_corrupt_is_ignored_with_its_name(

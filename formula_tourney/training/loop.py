@@ -19,7 +19,9 @@ CPU-seconds the run had spent when its round ended (``cpu_s``, ``training.budget
 and a schedule's ``budget_cpu_s`` or ``stop_at`` ends the run (``training.budget.StopRule``).
 With ``spec.demos`` the follower's laps (``training.demos``) fill a demonstration buffer before
 the first step, handed to the entrant (``use_demonstrations``: the BC warm start, and every
-batch's share of demonstration rows, ``agents.buffers.DemoMix``).
+batch's share of demonstration rows, ``agents.buffers.DemoMix``). At step boundaries a run of
+one car writes its resume file on schedule and on SIGTERM, and a run finds its folder's resume
+file and continues from it (``training.resume``); the finished run deletes it.
 """
 
 from __future__ import annotations
@@ -340,7 +342,7 @@ def _train(
             None, entrant.window, reward_rule,
         )  # fmt: skip
     resume_every_cpu_s = schedule.resume_every_cpu_s
-    resumed_at_cpu_s = clock.seconds()
+    saved_at_cpu_s = clock.seconds()
 
     def save_resume() -> None:
         """The resume file (``training.resume``): the entrant's state and the loop's."""
@@ -364,13 +366,14 @@ def _train(
     while not last and not stopped_early:
         # a step boundary: the resume file on schedule and on SIGTERM (one car: resumable)
         if preemption_requested():
+            writer.close()
             if cars == 1:
                 save_resume()
                 raise Preempted(f"{PREEMPTED}: {folder.resume_path}")
             raise Preempted(f"preempted: a run of {cars} cars starts again when run again")
-        if cars == 1 and clock.seconds() - resumed_at_cpu_s >= resume_every_cpu_s:
+        if cars == 1 and clock.seconds() - saved_at_cpu_s >= resume_every_cpu_s:
             save_resume()
-            resumed_at_cpu_s = clock.seconds()
+            saved_at_cpu_s = clock.seconds()
         for car in collector.started:
             entrant.episode_started(car)
         windows = collector.windows

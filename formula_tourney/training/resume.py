@@ -60,18 +60,24 @@ def preemption_requested() -> bool:
 @contextlib.contextmanager
 def sigterm_checkpoints() -> Iterator[None]:
     """While the block runs, SIGTERM only sets a flag that the training loop reads at its next
-    step boundary (write the resume file, raise :class:`Preempted`). Signal handlers can only
-    be set in the main thread; elsewhere SIGTERM keeps its handler."""
+    step boundary (write the resume file, raise :class:`Preempted`). A block that ends normally
+    although SIGTERM came (the run finished before a step boundary saw it) passes the signal on
+    to the previous handler afterwards: the request to end the process stands. Signal handlers
+    can only be set in the main thread; elsewhere SIGTERM keeps its handler."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     _sigterm.clear()
     previous = signal.signal(signal.SIGTERM, lambda _signum, _frame: _sigterm.set())
+    pending = False
     try:
         yield
+        pending = _sigterm.is_set()
     finally:
         signal.signal(signal.SIGTERM, previous)
         _sigterm.clear()
+    if pending:
+        signal.raise_signal(signal.SIGTERM)
 
 
 def to_plain(obj: Any) -> Any:
