@@ -342,3 +342,17 @@ def test_without_the_extra_an_sb3_entrant_names_how_to_install_it(
     monkeypatch.setattr(sb3.importlib, "import_module", without_sb3)
     with pytest.raises(UserInputError, match=r"pip install formula-tourney\[sb3\]"):
         sb3.algorithm_class("sb3_contrib", "CrossQ")
+
+
+@pytest.mark.skipif(not HAS_SB3, reason="the [sb3] extra is not installed")
+def test_the_shipped_byo_tournament_validates_with_its_outside_entrants() -> None:
+    from formula_tourney.tourney.plan import Planner
+    from formula_tourney.tourney.spec import load_spec
+
+    path = REPO / "tournaments" / "examples" / "byo.toml"
+    spec, text = load_spec(path)
+    planner = Planner(spec, path, text, Path("unused"))
+    assert planner.validate() == 3  # and each outside entrant acted on zeros in its spaces
+    runs = {v: planner.run_spec(0, v, 0) for v in ("TinySAC", "SB3-SAC", "WIN1")}
+    assert runs["SB3-SAC"].outside.sb3 == "SAC" and runs["WIN1"].outside is None
+    assert spec.claims is not None and spec.claims.claim[0].id == "tiny-vs-sb3"
