@@ -356,3 +356,25 @@ def test_the_shipped_byo_tournament_validates_with_its_outside_entrants() -> Non
     runs = {v: planner.run_spec(0, v, 0) for v in ("TinySAC", "SB3-SAC", "WIN1")}
     assert runs["SB3-SAC"].outside.sb3 == "SAC" and runs["WIN1"].outside is None
     assert spec.claims is not None and spec.claims.claim[0].id == "tiny-vs-sb3"
+
+
+def test_train_takes_an_outside_entrant_and_refuses_a_bad_one_up_front(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from formula_tourney.cli import main
+
+    short = ["--episodes", "2", "--max-steps", "30", "--test-every", "2", "--test-starts", "1",
+             "--test-max-steps", "30", "--json"]  # fmt: skip
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "--out", str(tmp_path / "bad"), "--impl", "examples.tiny_sac:TinySAC",
+              "--entrant-set", "hidden=1", *short])  # fmt: skip
+    assert exc.value.code == 2 and "settings: hidden" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+    main(["train", "--out", str(tmp_path / "tiny"), "--impl", "examples.tiny_sac:TinySAC",
+          "--entrant-set", "hidden=16", "--entrant-set", "learning_starts=8", "--entrant-set",
+          "batch_size=8", *short])  # fmt: skip
+    out = capsys.readouterr().out
+    summary = json.loads(out[out.index("{"):])
+    assert summary["episodes"] == 2 and summary["updates"] > 0
+    spec = JobFolder(tmp_path / "tiny").config()
+    assert spec["variant"] == "TinySAC" and spec["outside"]["settings"]["hidden"] == 16
