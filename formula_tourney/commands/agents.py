@@ -26,7 +26,7 @@ from formula_tourney.training.run_spec import DemoSettings, RunSpec, Schedule, b
 
 TRAIN_OPTIONS = [
     *field_options(
-        RunSpec, "Run", skip=("agent", "env", "schedule", "demos", "preset"),
+        RunSpec, "Run", skip=("agent", "env", "schedule", "demos", "preset", "outside"),
         names={"train_tracks": "--track", "test_tracks": "--test-track"},
         defaults={"variant": "WIN1", "train_tracks": ("oval",)},
     ),
@@ -64,6 +64,39 @@ def _parse_sets(items: list[str], what: str) -> dict[str, Any]:
     return out
 
 
+def _outside_option(impl: str | None, entry: str | None, sb3: str | None,
+                    sb3_contrib: str | None, sets: dict[str, Any]) -> Any:
+    """The outside entrant ``train``'s options name, or None for a variant."""
+    from pydantic import ValidationError
+
+    from formula_tourney.agents.outside.naming import OutsideEntrant
+
+    forms = {"impl": impl, "entry": entry, "sb3": sb3, "sb3_contrib": sb3_contrib}
+    if all(v is None for v in forms.values()):
+        if sets:
+            raise UserInputError("--entrant-set needs --impl, --entry, --sb3 or --sb3-contrib")
+        return None
+    own = "kwargs" if sb3 is not None or sb3_contrib is not None else "settings"
+    try:
+        return OutsideEntrant(**{k: v for k, v in forms.items() if v is not None}, **{own: sets})
+    except ValidationError as err:
+        problems = "; ".join(e["msg"].removeprefix("Value error, ") for e in err.errors())
+        raise UserInputError(f"train: --impl/--entry/--sb3/--sb3-contrib: {problems}") from None
+
+
+def _outside_name(outside: Any) -> str:
+    """A run name for an outside entrant: its class, entry point, or ``sb3-SAC``."""
+    if outside.impl is not None:
+        return str(outside.impl.rpartition(":")[2])
+    return str(outside.entry or f"{outside.form}-{outside.sb3 or outside.sb3_contrib}")
+
+
+def _user_set(ctx: typer.Context, name: str) -> bool:
+    """Whether the user gave option ``name`` on the command line."""
+    source = ctx.get_parameter_source(name)
+    return source is not None and source.name == "COMMANDLINE"
+
+
 def _preset_help() -> str:
     return (f"Settings preset: {', '.join(PRESETS)} (what each holds and the measurement that "
             "chose it: formula_tourney/training/presets.py, docs/results.md).")
@@ -99,23 +132,49 @@ def register(app: typer.Typer) -> None:
             [], "--env-set", help="FormulaRacing-v0 config override key=value (repeatable)."
         ),
         preset: str = typer.Option("paper", help=_preset_help()),
+        impl: str | None = typer.Option(
+            None, "--impl", help="Train an outside entrant class \"package.module:Class\" "
+            "(docs/entrants.md) instead of a variant.",
+        ),  # fmt: skip
+        entry: str | None = typer.Option(
+            None, "--entry", help="Train the outside entrant of this entry point (group "
+            "formula_tourney.entrants).",
+        ),  # fmt: skip
+        sb3: str | None = typer.Option(
+            None, "--sb3", help="Train a Stable-Baselines3 algorithm (SAC, TD3, PPO...)."
+        ),
+        sb3_contrib: str | None = typer.Option(
+            None, "--sb3-contrib", help="Train an sb3-contrib algorithm (CrossQ, TQC...)."
+        ),
+        entrant_set: list[str] = typer.Option(  # noqa: B006
+            [], "--entrant-set", help="An outside entrant's setting key=value (impl, entry) or "
+            "its algorithm's constructor argument (sb3, sb3-contrib) (repeatable).",
+        ),  # fmt: skip
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
         **values: Any,
     ) -> None:
-        """Train one DDPG variant and write its job folder (docs/CONTRACTS.md layout)."""
+        """Train one variant, or an outside entrant (--impl, --entry, --sb3, --sb3-contrib),
+        and write its job folder (docs/CONTRACTS.md layout)."""
         # heavy (torch, numba) imports stay inside the command so that --help is instant
         from formula_tourney.results.folder import JobFolder
         from formula_tourney.training.loop import train
+        from formula_tourney.training.outside import check_outside
         from formula_tourney.training.resume import Preempted
 
         check_output_path(out, "--out", folder=True)
         demos = chosen_values(ctx, TRAIN_OPTIONS, values, DemoSettings)
+        run = chosen_values(ctx, TRAIN_OPTIONS, values, RunSpec)
+        outside = _outside_option(impl, entry, sb3, sb3_contrib,
+                                  _parse_sets(entrant_set, "--entrant-set"))  # fmt: skip
+        if outside is not None and not _user_set(ctx, "variant"):
+            run["variant"] = _outside_name(outside)  # WIN1, the default, would mislabel it
         spec = build_run_spec(
-            **chosen_values(ctx, TRAIN_OPTIONS, values, RunSpec),
-            overrides=_parse_sets(set_, "--set"), env_overrides=_parse_sets(env_set, "--env-set"),
+            **run, overrides=_parse_sets(set_, "--set"),
+            env_overrides=_parse_sets(env_set, "--env-set"),
             schedule=chosen_values(ctx, TRAIN_OPTIONS, values, Schedule),
-            demos=demos or None, preset=preset, source="train options",
+            demos=demos or None, preset=preset, source="train options", outside=outside,
         )  # fmt: skip
+        check_outside(spec, f"train {outside.form if outside else ''}".strip())
         if JobFolder(out).is_finished():
             raise UserInputError(f"{out} holds a finished run (summary.json); choose another --out")
 

@@ -33,6 +33,7 @@ from formula_tourney.tourney.spec import (
     entrant_name,
     error_at,
 )
+from formula_tourney.training.outside import check_outside
 from formula_tourney.training.run_spec import SCHEDULE_KEYS, RunSpec, build_run_spec
 
 
@@ -58,6 +59,8 @@ def resolve_variant(spec: Tournament, name: str) -> tuple[str, str, dict[str, An
     while current in spec.variants and current not in seen:
         seen.add(current)
         entry = spec.variants[current]
+        if entry.outside() is not None:  # its own family: promotion ranks it on its own
+            return current, entry.family or current, {}
         overrides = {**entry.overrides, **overrides}
         family = family or entry.family
         if entry.base is None or entry.base == current:
@@ -145,6 +148,8 @@ class Planner:
         self.entrant_seeds: dict[tuple[str, str], int] | None = None
         """Seeds per (part, entrant) in a sequential run (``tourney.adaptive`` sets it; an
         entrant not in it has ``[adaptive] min_seeds``); None: every part its ``seeds``."""
+        self._checked: set[str] = set()
+        """Outside runs (their spec but the seed) that acted on zeros already."""
 
     def seeds(self, part: Part, entrant: str) -> int:
         """How many seeds (jobs) an entrant of a part runs now."""
@@ -198,9 +203,11 @@ class Planner:
         trains, tests = self.tracks(index)
         base, _family, own = resolve_variant(self.spec, variant)
         settings = {**self.spec.settings(part), **variant_run_settings(self.spec, variant)}
+        outside = self.spec.variant(variant).outside()
         try:
             return build_run_spec(
                 variant=base, overrides={**(settings["variant_overrides"] or {}), **own},
+                outside=outside,
                 train_tracks=trains, test_tracks=tests, reference=setup.reference,
                 lac=setup.lac, seed=self.spec.seed_base, track_base_dir=self.base_dir,
                 source=f"{part.name}/{entrant_name(variant, setup)}",
@@ -214,6 +221,8 @@ class Planner:
         """Where in the file a failing spec comes from: the variant's own overrides, the shared
         variant_overrides (part or [defaults]), or else the part."""
         part = self.spec.parts[index]
+        if self.spec.variant(variant).outside() is not None:
+            return ("variants", variant)
         base, _family, own = resolve_variant(self.spec, variant)
         shared = self.spec.settings(part)["variant_overrides"] or {}
         try:
@@ -298,6 +307,8 @@ class Planner:
         are checked too (a typo in one is still a typo).
         """
         for name in self.spec.variants:
+            if self.spec.variants[name].outside() is not None:
+                continue  # checked on its run's spaces below (check_outside)
             base, _family, own = resolve_variant(self.spec, name)
             try:
                 get_variant(base, own)
@@ -309,9 +320,23 @@ class Planner:
             self.tracks(index)
             for variant in possible_variants(self.spec, part):
                 for setup_index in range(len(part.setups)):
-                    self.run_spec(index, variant, setup_index)
+                    run = self.run_spec(index, variant, setup_index)
+                    if run.outside is not None and part.kind == "train":
+                        self._check_outside(index, variant, setup_index, run)
                     built += 1
         return built
+
+    def _check_outside(self, index: int, variant: str, setup_index: int, run: RunSpec) -> None:
+        """An outside entrant acts on zeros in the part's spaces (once per distinct run)."""
+        key = json.dumps({**run.to_json(), "seed": 0}, sort_keys=True)
+        if key in self._checked:
+            return
+        setup = self.spec.parts[index].setups[setup_index]
+        try:
+            check_outside(run, f"entrant {entrant_name(variant, setup)}")
+        except UserInputError as err:
+            raise error_at(self.path, self.text, ("variants", variant), str(err)) from None
+        self._checked.add(key)
 
 
     def describe(self, planned: list[PlannedPart]) -> dict[str, Any]:

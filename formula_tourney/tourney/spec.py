@@ -29,6 +29,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from formula_tourney.agents.outside.naming import FORMS as OUTSIDE_FORMS
+from formula_tourney.agents.outside.naming import OutsideEntrant
 from formula_tourney.agents.variants import ALL_VARIANTS, BEYOND_PAPER_VARIANTS, VARIANTS
 from formula_tourney.claims.schema import ClaimSet
 from formula_tourney.errors import UserInputError
@@ -137,7 +139,44 @@ class VariantEntry(_Strict):
         "over the part's; anything but 'paper' is labelled beyond the paper.",
     )
 
+    impl: str | None = Field(None, description=OutsideEntrant.model_fields["impl"].description)
+    entry: str | None = Field(None, description=OutsideEntrant.model_fields["entry"].description)
+    sb3: str | None = Field(None, description=OutsideEntrant.model_fields["sb3"].description)
+    sb3_contrib: str | None = Field(
+        None, description=OutsideEntrant.model_fields["sb3_contrib"].description
+    )
+    kwargs: dict[str, Any] | None = Field(
+        None, description=OutsideEntrant.model_fields["kwargs"].description
+    )
+    settings: dict[str, Any] | None = Field(
+        None, description=OutsideEntrant.model_fields["settings"].description
+    )
+
     _preset = field_validator("preset")(_check_preset)
+
+    @model_validator(mode="after")
+    def _outside(self) -> VariantEntry:
+        """An outside entrant is named by exactly one form and takes none of our variants'
+        agent keys (base, overrides, demos)."""
+        named = [k for k in OUTSIDE_FORMS if getattr(self, k) is not None]
+        if not named and (self.kwargs is not None or self.settings is not None):
+            raise ValueError(f"kwargs/settings belong to an outside entrant: give one of "
+                             f"{', '.join(OUTSIDE_FORMS)}")  # fmt: skip
+        if named:
+            ours = [k for k in ("base", "overrides", "demos") if k in self.model_fields_set]
+            if ours:
+                raise ValueError(f"{', '.join(ours)}: an outside entrant ({named[0]}) takes no "
+                                 "agent keys of our variants; its own go in settings (impl, "
+                                 "entry) or kwargs (sb3, sb3_contrib)")  # fmt: skip
+            self.outside()  # exactly one form, a well-formed impl
+        return self
+
+    def outside(self) -> OutsideEntrant | None:
+        """The outside entrant this entry names, or None for one of our variants."""
+        if all(getattr(self, k) is None for k in OUTSIDE_FORMS):
+            return None
+        return OutsideEntrant(**{k: getattr(self, k) for k in OUTSIDE_FORMS},
+                              kwargs=self.kwargs or {}, settings=self.settings or {})  # fmt: skip
 
 
 class Setup(_Strict):

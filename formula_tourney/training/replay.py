@@ -139,7 +139,7 @@ def replay(checkpoint: str | Path, track: str | None = None, gif: str | Path | N
     if not checkpoint.is_file():
         raise UserInputError(f"checkpoint {checkpoint} does not exist")
     agent, spec, extra = load_run_checkpoint(checkpoint, device=device)
-    if episode is not None and extra.get("episode") != episode:
+    if episode is not None and "episode" in extra and extra["episode"] != episode:
         raise UserInputError(f"{checkpoint} holds the actor of episode {extra.get('episode')}, "
                              f"not episode {episode}'s")
     track = track or spec.key_track

@@ -38,6 +38,7 @@ from pydantic import (
     model_validator,
 )
 
+from formula_tourney.agents.outside.kind import OutsideEntrant
 from formula_tourney.agents.variants import (
     AgentConfig,
     get_variant,
@@ -50,6 +51,7 @@ from formula_tourney.lines.kinds import ReferenceKind
 from formula_tourney.results.identity import training_digest
 from formula_tourney.sim.catalog import check_track_name
 from formula_tourney.sim.config import RUN_OWNED_KEYS, EnvSettings, GripScale
+from formula_tourney.sim.reward import BY_NAME as REWARD_SETTINGS
 from formula_tourney.training.presets import get_preset
 
 Device = Literal["auto", "cpu", "cuda"]
@@ -267,9 +269,20 @@ class RunSpec(_Frozen):
         "paper", description="The named preset (training.presets) the settings started from.",
         json_schema_extra=marks(added_in_layout=2),
     )
+    outside: OutsideEntrant | None = Field(
+        None, description="An outside entrant (agents.outside: impl, entry point or SB3 "
+        "algorithm) trained through the entrant protocol; None: one of our families. With "
+        "one, `agent` holds only the reward settings its transitions are stored with.",
+        json_schema_extra=marks(added_in_layout=2),
+    )  # fmt: skip
 
     @model_validator(mode="after")
     def _consistent(self) -> RunSpec:
+        if self.outside is not None and self.demos is not None:
+            raise ValueError(
+                f"entrant {self.variant} ({self.outside.label()}) is an outside entrant: "
+                "demos feed our families' replay buffers only"
+            )
         tracks = len(dict.fromkeys(self.train_tracks))
         if self.schedule.cars > 1 and self.schedule.cars < tracks:
             raise ValueError(
@@ -321,13 +334,18 @@ class RunSpec(_Frozen):
         a preset, a family beyond the paper's, demonstrations, a beyond-paper setting off what
         its preset gives, more than one car per learner, traffic."""
         out = []
+        if self.outside is not None:
+            out.append(f"outside entrant {self.outside.label()}")
         if self.preset != "paper":
             out.append(f"preset {self.preset}")
-        if self.agent.beyond_paper:
+        if self.outside is not None:
+            pass  # its own settings are not ours: no family or setting label applies
+        elif self.agent.beyond_paper:
             out.append(self.agent.family)
         if self.demos is not None:
             out.append(f"demos ({DEMO_BOT} on {self.demos.line})")
-        out.extend(self._beyond_paper_settings())
+        if self.outside is None:
+            out.extend(self._beyond_paper_settings())
         if self.schedule.cars > 1:
             out.append(f"{self.schedule.cars} cars")
         if self.schedule.traffic_bots:
@@ -423,6 +441,11 @@ def _omit_newer_defaults(model: type[BaseModel], data: dict[str, Any]) -> None:
             _omit_newer_defaults(section, data[name])
 
 
+OUTSIDE_BASE = "WIN1"
+"""The registered variant whose configuration an outside entrant's run carries: only its reward
+settings (``sim.reward``) are read, when the loop stores a transition."""
+
+
 def build_run_spec(
     *,
     variant: str,
@@ -440,6 +463,7 @@ def build_run_spec(
     preset: str = "paper",
     track_base_dir: Path | None = None,
     source: str = "run settings",
+    outside: OutsideEntrant | Mapping[str, Any] | None = None,
 ) -> RunSpec:
     """The one way to make a RunSpec; every problem is a UserInputError naming ``source``.
 
@@ -451,10 +475,23 @@ def build_run_spec(
     its defaults; None: no demonstrations). ``preset`` (``training.presets``) supplies agent
     overrides, schedule keys, env keys and demonstrations first; the caller's own settings win
     over it, key by key (``demos`` and ``env_overrides`` too).
+
+    ``outside`` names an outside entrant (``agents.outside.naming.OutsideEntrant``; ``variant``
+    is then its name in the tournament, not a registered variant): only the reward settings of
+    the preset and ``overrides`` apply (the agent configuration of :data:`OUTSIDE_BASE` holds
+    them), so every entrant of a part learns from the same stored reward.
     """
     chosen = get_preset(preset)
-    preset_agent = chosen.agent_overrides(get_variant(variant).family, named_settings(variant))
-    agent = get_variant(variant, {**preset_agent, **dict(overrides or {})})
+    if outside is not None:
+        base = OUTSIDE_BASE
+        preset_agent = chosen.agent_overrides(get_variant(base).family, named_settings(base))
+        wanted = {**preset_agent, **dict(overrides or {})}
+        agent = get_variant(base, {k: v for k, v in wanted.items() if k in REWARD_SETTINGS})
+        chosen = chosen.model_copy(update={"demos": None})  # a preset's demos are our families'
+    else:
+        preset_agent = chosen.agent_overrides(get_variant(variant).family,
+                                              named_settings(variant))  # fmt: skip
+        agent = get_variant(variant, {**preset_agent, **dict(overrides or {})})
     schedule = {**chosen.schedule, **dict(schedule or {})}
     if chosen.demos is not None and not isinstance(demos, DemoSettings):
         demos = {**chosen.demos, **dict(demos or {})}  # the caller's keys win, one by one
@@ -473,7 +510,7 @@ def build_run_spec(
             test_tracks=tuple(tests), reference=reference, lac=lac,
             schedule=Schedule(**dict(schedule or {})), seed=seed, device=device, threads=threads,
             demos=demos if demos is None or isinstance(demos, DemoSettings) else dict(demos),
-            preset=preset,
+            preset=preset, outside=outside,
         )  # fmt: skip
     except ValidationError as err:
         raise UserInputError(f"{source}: {validation_problems(err)}") from None

@@ -12,7 +12,8 @@ replay buffer exactly as ``training.loop.train`` does, then times, for about ``s
 Each is timed in chunks, so the spread between chunks gives the rate's standard error. One
 thread, as a worker runs (``configure_torch(spec.threads)``). Only single-car runs are measured
 as such; with ``schedule.cars > 1`` the per-car-step rates of one car are used (vector envs
-step cars faster, so the estimate errs high).
+step cars faster, so the estimate errs high). An outside entrant is driven as the loop drives
+it instead (:func:`calibrate_outside`): its learning schedule is its own.
 """
 
 from __future__ import annotations
@@ -23,8 +24,9 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -34,10 +36,12 @@ from formula_tourney.agents.checkpoints import save_checkpoint
 from formula_tourney.agents.core import configure_torch
 from formula_tourney.agents.families import make_agent
 from formula_tourney.agents.noise import BrakeExplorationNoise
+from formula_tourney.agents.outside.check import build_entrant
 from formula_tourney.sim.reward import RewardRule
 from formula_tourney.training.collect import SingleCarCollector
 from formula_tourney.training.envs import RunEnvs
 from formula_tourney.training.evaluate import run_test_episode, start_positions
+from formula_tourney.training.outside import run_spaces
 from formula_tourney.training.run_spec import RunSpec
 
 
@@ -70,6 +74,10 @@ class Rates:
     episode_steps_se: float
     episodes_seen: int
     """Lengths of the exploring episodes seen (cut at max_steps)."""
+    learn_from_steps: int | None = None
+    """An outside entrant's: the loop step at which its first update did work (None: ours,
+    whose learning_starts and updates_per_step say when and how often). Its ``update`` rate is
+    then the extra CPU of one loop step once it learns (:func:`calibrate_outside`)."""
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -172,6 +180,8 @@ Z95_STEPS = 1.96
 def calibrate(spec: RunSpec, seconds: float = 1.0, chunk_steps: int = 100,
               chunk_updates: int = 10) -> Rates:
     """Time ``spec``'s env steps, updates and a test for about ``seconds`` in all."""
+    if spec.outside is not None:
+        return calibrate_outside(spec, seconds, chunk_steps)
     cfg = spec.agent
     configure_torch(spec.threads)
     started = time.perf_counter()
@@ -252,3 +262,93 @@ def calibrate(spec: RunSpec, seconds: float = 1.0, chunk_steps: int = 100,
         checkpoint_s=checkpoint_s, episode_steps_mean=mean_steps, episode_steps_se=se_steps,
         episodes_seen=int(arr.size),
     )  # fmt: skip
+
+
+OUTSIDE_MAX_WARMUP_STEPS = 5_000
+"""Most loop steps a calibration drives an outside entrant to see it learn: one that has not
+updated by then is costed as one that never does within the run (its rate says so)."""
+
+
+def calibrate_outside(spec: RunSpec, seconds: float = 1.0, chunk_steps: int = 100) -> Rates:
+    """An outside entrant's rates, by driving it as the loop does (``explore``, env step,
+    ``observe``, ``update``). Its inner schedule is its own, so the rule is measured, not read:
+    loop steps are timed in chunks until about ``seconds`` have passed and the entrant has
+    learned for a while (its first ``update`` that returned losses, at most
+    :data:`OUTSIDE_MAX_WARMUP_STEPS` steps); ``env_step`` is a step before it learns,
+    ``update`` the extra of a step once it does, ``learn_from_steps`` where that began."""
+    assert spec.outside is not None
+    configure_torch(spec.threads)
+    started = time.perf_counter()
+    envs = RunEnvs(spec)
+    track = spec.train_tracks[0]
+    env = envs.make(track, test=False)
+    entrant = build_entrant(spec.outside, replace(run_spaces(spec), cars=1), spec.seed, "cpu",
+                            f"entrant {spec.variant}")  # fmt: skip
+    collector = SingleCarCollector({track: env}, [track], np.random.default_rng(spec.seed), None,
+                                   entrant.window, RewardRule.of(spec.agent))  # fmt: skip
+    setup_s = time.perf_counter() - started
+    lengths: list[int] = []
+    before: list[tuple[float, int]] = []
+    after: list[tuple[float, int]] = []
+    learn_from: int | None = None
+    steps = 0
+    t_phase = time.perf_counter()
+    while True:
+        elapsed = time.perf_counter() - t_phase
+        enough_after = len(after) >= 3 or (learn_from is None and steps >= OUTSIDE_MAX_WARMUP_STEPS)
+        if elapsed >= 0.9 * seconds and len(before) + len(after) >= 3 and enough_after:
+            break
+        t = time.perf_counter()
+        learned = 0
+        for _ in range(chunk_steps):
+            for car in collector.started:
+                entrant.episode_started(car)
+            action = np.asarray(entrant.explore(np.stack(collector.windows), steps))
+            for ended in collector.step([action[0]]):
+                lengths.append(ended.steps)
+            entrant.observe(collector.transitions)
+            if entrant.update(steps):
+                learned += 1
+                learn_from = steps if learn_from is None else learn_from
+            steps += 1
+        (after if learned else before).append((time.perf_counter() - t, chunk_steps))
+    test_track = spec.test_tracks[0]
+    test_env = envs.make(test_track, test=True)
+    start = start_positions(envs.tracks[test_track].length_m, 1)[0]
+    model = _Greedy(entrant)
+    t = time.perf_counter()
+    drive = run_test_episode(model, test_env, test_track, start, seed=spec.seed * 1000)
+    test_s = time.perf_counter() - t
+    with tempfile.TemporaryDirectory() as tmp:
+        t = time.perf_counter()
+        entrant.save(Path(tmp) / "model")
+        checkpoint_s = time.perf_counter() - t
+    env.close()
+    test_env.close()
+    step = _measured(before or after)
+    extra = _measured(after) if after else Measured(0.0, 0.0, 0)
+    update = Measured(max(0.0, extra.mean_s - step.mean_s), math.hypot(extra.se_s, step.se_s),
+                      extra.samples)  # fmt: skip
+    if not lengths:
+        lengths = [min(spec.schedule.max_steps, steps)]
+    arr = np.minimum(np.asarray(lengths, dtype=float), spec.schedule.max_steps)
+    return Rates(
+        setup_s=setup_s, env_step=step, update=update, test_episode_s=test_s,
+        test_step_s=test_s / max(1, drive.steps), checkpoint_s=checkpoint_s,
+        episode_steps_mean=float(arr.mean()),
+        episode_steps_se=float(arr.std(ddof=1) / math.sqrt(arr.size)) if arr.size > 1 else
+        float(arr.mean()) * 0.5,
+        episodes_seen=int(arr.size),
+        learn_from_steps=learn_from if learn_from is not None else 10**12,
+    )  # fmt: skip
+
+
+class _Greedy:
+    """An entrant as ``run_test_episode`` drives it: ``cfg.window`` and ``act_eval``."""
+
+    def __init__(self, entrant: Any) -> None:
+        self.entrant = entrant
+        self.cfg = SimpleNamespace(window=entrant.window)
+
+    def act_eval(self, window: np.ndarray) -> np.ndarray:
+        return np.asarray(self.entrant.act(window[None]))[0]

@@ -135,6 +135,8 @@ def job_cost(spec: RunSpec, rates: Rates, fixed_s: float | None = None) -> JobCo
         episodes = min(sch.episodes, math.ceil(sch.env_steps / max(length, 1.0)))
     learn_from = max(cfg.learning_starts, cfg.batch_size)
     ups = cfg.updates_per_step
+    if rates.learn_from_steps is not None:  # an outside entrant: its measured schedule
+        learn_from, ups = rates.learn_from_steps, 1.0
 
     def updates_for(n_steps: float) -> float:
         return max(0.0, n_steps - learn_from + 1) * ups
@@ -288,8 +290,9 @@ RateSource = Callable[[RunSpec], Rates]
 def rate_key(spec: RunSpec) -> str:
     """Specs that cost the same per step share one measurement: the agent, the env settings,
     the first train track and LAC (the observation size)."""
+    outside = [spec.outside.model_dump_json()] if spec.outside is not None else []
     return "|".join([spec.agent.model_dump_json(), spec.env.model_dump_json(),
-                     spec.train_tracks[0], str(spec.lac), spec.test_tracks[0]])
+                     spec.train_tracks[0], str(spec.lac), spec.test_tracks[0], *outside])
 
 
 def as_dict(rates: Rates) -> dict[str, Any]:
