@@ -17,11 +17,13 @@ from typing import Any
 from formula_tourney.errors import UserInputError
 from formula_tourney.results.layout import ESTIMATE_FILE
 from formula_tourney.safeio import atomic_write_json
-from formula_tourney.tourney.executors import Event, default_workers, make_executor
+from formula_tourney.tourney.executors import SLURM_KINDS, default_workers, make_executor
+from formula_tourney.tourney.job_events import Event
 from formula_tourney.tourney.kinds import KINDS
 from formula_tourney.tourney.lock import RunLock
 from formula_tourney.tourney.plan import PlannedPart, Planner
 from formula_tourney.tourney.scheduler import RunProgress, Scheduler
+from formula_tourney.tourney.slurm_executor import SlurmSettings
 from formula_tourney.tourney.spec import error_at, load_spec
 from formula_tourney.tourney.store import Store
 from formula_tourney.tourney.summary import collect_results
@@ -62,6 +64,8 @@ def run_tournament(
     calibrate_s: float = 1.0,
     cluster_cpus: int | None = None,
     report: Callable[[str], None] | None = None,
+    job_timeout_s: float | None = None,
+    slurm: SlurmSettings | None = None,
 ) -> dict[str, Any]:
     """Run (or resume) the tournament in ``path``; return the results as plain data.
 
@@ -74,6 +78,8 @@ def run_tournament(
     cost estimate (``tourney.estimate``; ``cluster_cpus``: also for a Ray cluster that size):
     to the dry run's result, or, for a run, to ``estimate.json`` in the results folder when the
     tournament has none yet (a resume keeps the first). ``report`` hears its progress lines.
+    ``job_timeout_s`` stops and fails a job that runs longer; ``slurm`` holds the settings of
+    ``executor="slurm"`` / ``"slurm-local"`` (``tourney.slurm_executor``).
     """
     if retries < 0:
         raise UserInputError(f"--retries must be >= 0, got {retries}")
@@ -81,6 +87,8 @@ def run_tournament(
         raise UserInputError(f"--workers must be >= 1, got {workers}")
     if cluster_cpus is not None and cluster_cpus < 1:
         raise UserInputError(f"--cluster-cpus must be >= 1, got {cluster_cpus}")
+    if workers is not None and executor in SLURM_KINDS:
+        raise UserInputError("--workers is not for --executor slurm; use --slurm-max-parallel")
     planner, planned, root = plan_tournament(path, results_dir)
     slots = workers or default_workers()
     cost = None
@@ -93,7 +101,7 @@ def run_tournament(
     if dry_run:
         out = {"dry_run": True, "results": str(root), "plan": planner.describe(planned)}
         return out if cost is None else {**out, "estimate": cost}
-    pool = make_executor(executor, slots, address)
+    pool = make_executor(executor, slots, address, job_timeout_s, slurm, root)
     with RunLock(root):
         if cost is not None:
             atomic_write_json(root / ESTIMATE_FILE, cost)

@@ -1,0 +1,113 @@
+"""Tournaments through submitit: on a real single-node Slurm (``slurm_fixture`` starts munged,
+slurmctld and slurmd), and on submitit's local processes (``--executor slurm-local``, no
+daemon). The job tables equal an uninterrupted run on the local pool; a Slurm array task
+cancelled with ``scancel`` in the middle of its job is submitted again by the parent, counted
+once as retried, and nothing is lost."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from cluster_fixtures import REPO, digests, index_rows, reference_digests, tiny_file
+from slurm_fixture import SlurmCluster, slurm_cluster  # noqa: F401  (the fixture)
+
+from formula_tourney.errors import UserInputError
+from formula_tourney.results.layout import SUBMITIT_DIR
+from formula_tourney.tourney.api import run_tournament
+from formula_tourney.tourney.runner import FAULTS_ENV
+from formula_tourney.tourney.slurm_executor import SlurmSettings, job_name
+
+pytest.importorskip("submitit")
+
+SETTINGS = SlurmSettings(time_min=5, mem_gb=1, max_parallel=2)
+
+
+def test_slurm_local_runs_the_same_jobs_without_slurm(tmp_path: Path) -> None:
+    result = run_tournament(
+        tiny_file(tmp_path), executor="slurm-local", slurm=SETTINGS, results_dir=tmp_path / "res"
+    )
+    assert result["executor"] == "slurm-local" and result["workers"] == 2
+    jobs = index_rows(tmp_path / "res")
+    assert [r["status"] for r in jobs.values()] == ["done", "done"]
+    assert digests(tmp_path / "res") == reference_digests()
+    assert list((tmp_path / "res" / "tiny" / SUBMITIT_DIR).glob("*_result.pkl"))
+
+
+def test_scancel_of_an_array_task_reruns_its_job_and_loses_nothing(
+    slurm_cluster: SlurmCluster,  # noqa: F811
+    tmp_path: Path,
+) -> None:
+    results = tmp_path / "res"
+    name = job_name(results / "tiny")
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "formula_tourney.cli",
+            "run",
+            str(tiny_file(tmp_path)),
+            "--executor",
+            "slurm",
+            "--slurm-partition",
+            slurm_cluster.partition,
+            "--slurm-time-min",
+            "5",
+            "--slurm-mem-gb",
+            "1",
+            "--slurm-max-parallel",
+            "2",
+            "--results",
+            str(results),
+            "--json",
+        ],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, FAULTS_ENV: json.dumps({"p1/*": "sleep:4"})},  # sbatch passes it on
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while True:  # both tasks of the array run: cancel the second
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            tasks = slurm_cluster.squeue("--name", name)
+            if [state for _id, state, _name in tasks] == ["RUNNING", "RUNNING"]:
+                break
+            time.sleep(0.2)
+        cancelled = sorted(task_id for task_id, _state, _name in tasks)[-1]
+        assert "_" in cancelled  # an array task
+        subprocess.run(["scancel", cancelled], check=True)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err[-2000:]
+    result = json.loads(out)
+    assert result["this_run"]["retried"] == 1 and result["this_run"]["failed"] == 0
+    jobs = index_rows(results)
+    assert sorted((r["status"], r["attempts"]) for r in jobs.values()) == [("done", 1), ("done", 2)]
+    assert digests(results) == reference_digests()
+    states = {task_id: state for task_id, state, _name in slurm_cluster.squeue("--name", name)}
+    assert states[cancelled] == "CANCELLED" and list(states.values()).count("COMPLETED") == 2
+
+
+def test_an_unknown_partition_is_refused_before_anything_runs(
+    slurm_cluster: SlurmCluster,  # noqa: F811
+    tmp_path: Path,
+) -> None:
+    with pytest.raises(
+        UserInputError, match="--slurm-partition 'gpu' does not exist; allowed values: debug"
+    ):
+        run_tournament(
+            tiny_file(tmp_path),
+            executor="slurm",
+            slurm=SlurmSettings(partition="gpu"),
+            results_dir=tmp_path / "res",
+        )
+    assert not (tmp_path / "res").exists()
