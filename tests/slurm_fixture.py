@@ -52,7 +52,7 @@ JobRequeue=1
 MpiDefault=none
 SlurmUser=root
 AuthType=auth/munge
-AuthInfo=socket={root}/munge/munge.socket
+AuthInfo=socket={root}/munge/munge.socket,cred_expire=10
 CredType=cred/munge
 JobAcctGatherType=jobacct_gather/none
 AccountingStorageType=accounting_storage/none

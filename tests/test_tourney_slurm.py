@@ -1,8 +1,10 @@
 """Tournaments through submitit: on a real single-node Slurm (``slurm_fixture`` starts munged,
 slurmctld and slurmd), and on submitit's local processes (``--executor slurm-local``, no
-daemon). The job tables equal an uninterrupted run on the local pool; a Slurm array task
-cancelled with ``scancel`` in the middle of its job is submitted again by the parent, counted
-once as retried, and nothing is lost."""
+daemon). The job tables equal an uninterrupted run on the local pool. In the middle of their
+jobs, one Slurm array task is signalled as at a time limit (submitit checkpoints and requeues
+it: the same job continues under the same id, and the parent counts nothing) and the other is
+cancelled with ``scancel`` (the parent submits it again and counts it once as retried);
+nothing is lost."""
 
 from __future__ import annotations
 
@@ -21,7 +23,7 @@ from formula_tourney.errors import UserInputError
 from formula_tourney.results.layout import SUBMITIT_DIR
 from formula_tourney.tourney.api import run_tournament
 from formula_tourney.tourney.runner import FAULTS_ENV
-from formula_tourney.tourney.slurm_executor import SlurmSettings, job_name
+from formula_tourney.tourney.slurm_executor import RUNNING_LINE, SlurmSettings, job_name
 
 pytest.importorskip("submitit")
 
@@ -39,33 +41,17 @@ def test_slurm_local_runs_the_same_jobs_without_slurm(tmp_path: Path) -> None:
     assert list((tmp_path / "res" / "tiny" / SUBMITIT_DIR).glob("*_result.pkl"))
 
 
-def test_scancel_of_an_array_task_reruns_its_job_and_loses_nothing(
+def test_a_requeued_task_continues_and_a_cancelled_one_runs_again(
     slurm_cluster: SlurmCluster,  # noqa: F811
     tmp_path: Path,
 ) -> None:
     results = tmp_path / "res"
     name = job_name(results / "tiny")
+    argv = ["run", str(tiny_file(tmp_path)), "--executor", "slurm", "--slurm-partition",
+            slurm_cluster.partition, "--slurm-time-min", "5", "--slurm-mem-gb", "1",
+            "--slurm-max-parallel", "2", "--results", str(results), "--json"]  # fmt: skip
     proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "formula_tourney.cli",
-            "run",
-            str(tiny_file(tmp_path)),
-            "--executor",
-            "slurm",
-            "--slurm-partition",
-            slurm_cluster.partition,
-            "--slurm-time-min",
-            "5",
-            "--slurm-mem-gb",
-            "1",
-            "--slurm-max-parallel",
-            "2",
-            "--results",
-            str(results),
-            "--json",
-        ],
+        [sys.executable, "-m", "formula_tourney.cli", *argv],
         cwd=REPO,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -74,14 +60,18 @@ def test_scancel_of_an_array_task_reruns_its_job_and_loses_nothing(
     )
     try:
         deadline = time.monotonic() + 60
-        while True:  # both tasks of the array run: cancel the second
+        while True:  # both tasks of the array run their job
             assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
-            tasks = slurm_cluster.squeue("--name", name)
-            if [state for _id, state, _name in tasks] == ["RUNNING", "RUNNING"]:
+            logs = [p.read_text() for p in (results / "tiny" / SUBMITIT_DIR).glob("*_log.out")]
+            if sum(RUNNING_LINE in log for log in logs) == 2:
                 break
             time.sleep(0.2)
-        cancelled = sorted(task_id for task_id, _state, _name in tasks)[-1]
+        tasks = slurm_cluster.squeue("--name", name)
+        preempted, cancelled = sorted(task_id for task_id, _state, _name in tasks)
         assert "_" in cancelled  # an array task
+        # USR2 is what Slurm sends before a time limit or a preemption: submitit checkpoints
+        # the call and requeues the task under its id; the parent keeps following that id.
+        subprocess.run(["scancel", "--signal=USR2", preempted], check=True)
         subprocess.run(["scancel", cancelled], check=True)
         out, err = proc.communicate(timeout=120)
     finally:
@@ -95,6 +85,9 @@ def test_scancel_of_an_array_task_reruns_its_job_and_loses_nothing(
     assert digests(results) == reference_digests()
     states = {task_id: state for task_id, state, _name in slurm_cluster.squeue("--name", name)}
     assert states[cancelled] == "CANCELLED" and list(states.values()).count("COMPLETED") == 2
+    shown = subprocess.run(["scontrol", "show", "job", preempted], capture_output=True,
+                           text=True, check=True).stdout  # fmt: skip
+    assert "Restarts=1" in shown and "JobState=COMPLETED" in shown
 
 
 def test_an_unknown_partition_is_refused_before_anything_runs(

@@ -65,6 +65,9 @@ LOST_STATES = frozenset({"CANCELLED", "PREEMPTED", "NODE_FAIL", "BOOT_FAIL", "DE
 RESULT_WAIT_S = 30.0
 """How long a task Slurm calls COMPLETED may take to show its result file (a shared file
 system's attribute cache) before it counts as failed."""
+RUNNING_LINE = "formula-tourney: running"
+"""Start of the line a task prints to its log when its job starts (after submitit's signal
+handlers are in place)."""
 QUERY_EVERY_S = 2.0
 """Least seconds between two ``squeue`` calls: slurmctld serves every user of the cluster."""
 
@@ -132,6 +135,8 @@ class SlurmJobCall:
     """
 
     def __call__(self, job: Job) -> dict[str, Any]:
+        # the task's log says which job it runs (submitit's own lines name only the task)
+        print(f"{RUNNING_LINE} {job.job_id} in {job.out_dir}", flush=True)
         return run_to_outcome(job)
 
     def checkpoint(self, job: Job) -> Any:
