@@ -4,7 +4,7 @@ daemon). The job tables equal an uninterrupted run on the local pool. In the mid
 jobs, one Slurm array task is signalled as at a time limit (submitit checkpoints and requeues
 it: the same job continues under the same id, and the parent counts nothing) and the other is
 cancelled with ``scancel`` (the parent submits it again and counts it once as retried);
-nothing is lost."""
+nothing is lost. A job a killed earlier parent left in the queue is cancelled first."""
 
 from __future__ import annotations
 
@@ -50,6 +50,11 @@ def test_a_requeued_task_continues_and_a_cancelled_one_runs_again(
     argv = ["run", str(tiny_file(tmp_path)), "--executor", "slurm", "--slurm-partition",
             slurm_cluster.partition, "--slurm-time-min", "5", "--slurm-mem-gb", "1",
             "--slurm-max-parallel", "2", "--results", str(results), "--json"]  # fmt: skip
+    # a job of this folder that a killed earlier parent left running: the run cancels it first
+    sbatch = ["sbatch", "--parsable", f"--job-name={name}", "--output=/dev/null"]
+    leftover = subprocess.run(
+        [*sbatch, "--wrap=sleep 300"], capture_output=True, text=True, check=True
+    ).stdout.strip()
     proc = subprocess.Popen(
         [sys.executable, "-m", "formula_tourney.cli", *argv],
         cwd=REPO,
@@ -67,7 +72,7 @@ def test_a_requeued_task_continues_and_a_cancelled_one_runs_again(
                 break
             time.sleep(0.2)
         tasks = slurm_cluster.squeue("--name", name)
-        preempted, cancelled = sorted(task_id for task_id, _state, _name in tasks)
+        preempted, cancelled = sorted(task for task, state, _name in tasks if state == "RUNNING")
         assert "_" in cancelled  # an array task
         # USR2 is what Slurm sends before a time limit or a preemption: submitit checkpoints
         # the call and requeues the task under its id; the parent keeps following that id.
@@ -85,6 +90,7 @@ def test_a_requeued_task_continues_and_a_cancelled_one_runs_again(
     assert digests(results) == reference_digests()
     states = {task_id: state for task_id, state, _name in slurm_cluster.squeue("--name", name)}
     assert states[cancelled] == "CANCELLED" and list(states.values()).count("COMPLETED") == 2
+    assert states[leftover] == "CANCELLED"
     shown = subprocess.run(["scontrol", "show", "job", preempted], capture_output=True,
                            text=True, check=True).stdout  # fmt: skip
     assert "Restarts=1" in shown and "JobState=COMPLETED" in shown

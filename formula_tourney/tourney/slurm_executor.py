@@ -68,6 +68,9 @@ system's attribute cache) before it counts as failed."""
 RUNNING_LINE = "formula-tourney: running"
 """Start of the line a task prints to its log when its job starts (after submitit's signal
 handlers are in place)."""
+LEFTOVER_WAIT_S = 120.0
+"""Longest wait for the cancelled jobs of a killed earlier parent to stop (Slurm's KillWait is
+30 s by default)."""
 QUERY_EVERY_S = 2.0
 """Least seconds between two ``squeue`` calls: slurmctld serves every user of the cluster."""
 
@@ -190,12 +193,8 @@ class SlurmExecutor:
         for key in THREAD_ENV:  # sbatch and the local processes pass the environment on
             os.environ.setdefault(key, "1")
         self.folder.mkdir(parents=True, exist_ok=True)
-        if self.cluster == "slurm":  # the jobs a killed earlier parent left behind
-            subprocess.run(
-                ["scancel", f"--name={self.name}", f"--user={getpass.getuser()}"],
-                capture_output=True,
-                check=False,
-            )
+        if self.cluster == "slurm":
+            self._cancel_leftovers()
         executor = self._submitit.AutoExecutor(folder=self.folder, cluster=self.cluster)
         settings = self.settings
         params: dict[str, Any] = {
@@ -209,6 +208,20 @@ class SlurmExecutor:
             params["slurm_partition"] = settings.partition
         executor.update_parameters(**params)
         self._executor = executor
+
+    def _cancel_leftovers(self) -> None:
+        """Cancel the jobs of this results folder that a killed earlier parent left queued or
+        running (the run's lock says no live parent follows them), and wait until Slurm has
+        stopped their processes, so no two attempts of one job write its folder at once."""
+        mine = [f"--name={self.name}", f"--user={getpass.getuser()}"]
+        subprocess.run(["scancel", *mine], capture_output=True, check=False)
+        deadline = time.monotonic() + LEFTOVER_WAIT_S
+        while time.monotonic() < deadline:
+            out = subprocess.run(["squeue", "-h", "-o", "%i", *mine], capture_output=True,
+                                 text=True, check=False)  # fmt: skip
+            if out.returncode != 0 or not out.stdout.strip():
+                return
+            time.sleep(1.0)
 
     def free_slots(self) -> int:
         return sum(1 for job in self._slots if job is None)
