@@ -30,6 +30,14 @@ def tiny_file(folder: Path) -> Path:
     return path
 
 
+def slow_file(folder: Path) -> Path:
+    """One tiny training job in a part named ``slow`` (tests make it sleep through
+    ``runner.FAULTS_ENV`` pattern ``slow/*``)."""
+    path = folder / "slow.toml"
+    path.write_text(TINY.format(entrants='["WIN1"]', p2="").replace('"p1"', '"slow"'))
+    return path
+
+
 def index_rows(results: Path) -> dict[str, dict]:
     """The index's job rows of the tiny tournament under ``results``."""
     db = sqlite3.connect(results / "tiny" / "index.sqlite")

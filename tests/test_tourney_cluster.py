@@ -1,7 +1,7 @@
 """A tournament on a real two-node Ray cluster (``ray start`` twice on this machine) survives
 kill -9 of one node's raylet in the middle of a job: the job that node held runs again on the
 other node, is counted once as retried (not failed), and the job tables equal an uninterrupted
-run on the local pool."""
+run on the local pool. A task past ``--job-timeout-s`` is cancelled, its worker killed."""
 
 from __future__ import annotations
 
@@ -22,7 +22,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from cluster_fixtures import REPO, digests, index_rows, reference_digests, tiny_file
+from cluster_fixtures import (
+    REPO,
+    digests,
+    index_rows,
+    reference_digests,
+    slow_file,
+    tiny_file,
+)
 
 from formula_tourney.tourney.runner import FAULTS_ENV
 
@@ -91,7 +98,7 @@ def _stop(temp_dir: Path) -> None:
         time.sleep(0.5)
 
 
-@pytest.fixture
+@pytest.fixture(scope="module")
 def ray_cluster() -> Iterator[RayCluster]:
     """A head node and a second node, one CPU each, in a private temp folder (a short path:
     Ray's unix sockets live under it). Token auth, as ``ray start --head`` enables by default."""
@@ -104,7 +111,8 @@ def ray_cluster() -> Iterator[RayCluster]:
         "RAY_AUTH_MODE": "token",
         "RAY_AUTH_TOKEN": secrets.token_hex(32),
         "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])),
-        FAULTS_ENV: json.dumps({"p1/*": f"sleep:{JOB_SLEEP_S}"}),  # read by the Ray workers
+        # read by the Ray workers: p1's jobs sleep a little, the part "slow" a long time
+        FAULTS_ENV: json.dumps({"p1/*": f"sleep:{JOB_SLEEP_S}", "slow/*": "sleep:300"}),
     }
     common = [
         "--num-cpus",
@@ -136,6 +144,19 @@ def ray_cluster() -> Iterator[RayCluster]:
         shutil.rmtree(temp_dir, ignore_errors=True)
 
 
+def _run_cli(cluster: RayCluster, tournament: Path, results: Path, *extra: str) -> subprocess.Popen:
+    argv = ["run", str(tournament), "--executor", "ray", "--address", cluster.address,
+            "--results", str(results), "--json", *extra]  # fmt: skip
+    return subprocess.Popen(
+        [sys.executable, "-m", "formula_tourney.cli", *argv],
+        cwd=REPO,
+        env=cluster.env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
 def _running_pids(results: Path, proc: subprocess.Popen, count: int) -> dict[str, int]:
     """Wait until ``count`` jobs run (their Ray worker's pid in the index)."""
     deadline = time.monotonic() + 60
@@ -162,29 +183,7 @@ def test_killing_a_nodes_raylet_reruns_its_job_and_loses_nothing(
     assert len(raylets) == 2, raylets
     second = next(pid for pid, name in raylets.items() if name.endswith("raylet.1"))
     results = tmp_path / "res"
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "formula_tourney.cli",
-            "run",
-            str(tiny_file(tmp_path)),
-            "--executor",
-            "ray",
-            "--address",
-            ray_cluster.address,
-            "--workers",
-            "2",
-            "--results",
-            str(results),
-            "--json",
-        ],
-        cwd=REPO,
-        env=ray_cluster.env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    proc = _run_cli(ray_cluster, tiny_file(tmp_path), results, "--workers", "2")
     try:
         running = _running_pids(results, proc, 2)  # one job on each node
         on_second = [job for job, pid in running.items() if _parent(pid) == second]
@@ -203,3 +202,21 @@ def test_killing_a_nodes_raylet_reruns_its_job_and_loses_nothing(
         j: 2 if j == on_second[0] else 1 for j in jobs
     }
     assert digests(results) == reference_digests()
+
+
+def test_a_task_past_its_time_limit_is_cancelled_and_failed(
+    ray_cluster: RayCluster, tmp_path: Path
+) -> None:
+    proc = _run_cli(
+        ray_cluster, slow_file(tmp_path), tmp_path / "res", "--workers", "1", "--job-timeout-s", "3"
+    )
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 3, err[-2000:]  # a job failed
+    assert json.loads(out)["this_run"]["failed"] == 1
+    (row,) = index_rows(tmp_path / "res").values()
+    assert (row["status"], row["reason"], row["attempts"]) == ("failed", "timed out after 3 s", 1)
+    assert 3.0 <= row["wall_s"] < 8.0
+    deadline = time.monotonic() + 10
+    while Path(f"/proc/{row['worker_pid']}").exists():  # ray.cancel(force=True) kills it
+        assert time.monotonic() < deadline, "the task's worker process outlived its cancel"
+        time.sleep(0.2)

@@ -16,7 +16,14 @@ import time
 from pathlib import Path
 
 import pytest
-from cluster_fixtures import REPO, digests, index_rows, reference_digests, tiny_file
+from cluster_fixtures import (
+    REPO,
+    digests,
+    index_rows,
+    reference_digests,
+    slow_file,
+    tiny_file,
+)
 from slurm_fixture import SlurmCluster, slurm_cluster  # noqa: F401  (the fixture)
 
 from formula_tourney.errors import UserInputError
@@ -39,6 +46,35 @@ def test_slurm_local_runs_the_same_jobs_without_slurm(tmp_path: Path) -> None:
     assert [r["status"] for r in jobs.values()] == ["done", "done"]
     assert digests(tmp_path / "res") == reference_digests()
     assert list((tmp_path / "res" / "tiny" / SUBMITIT_DIR).glob("*_result.pkl"))
+
+
+def test_a_job_past_its_time_limit_is_cancelled_and_failed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv(FAULTS_ENV, json.dumps({"slow/*": "sleep:300"}))
+    result = run_tournament(
+        slow_file(tmp_path), executor="slurm-local", slurm=SETTINGS, job_timeout_s=3,
+        results_dir=tmp_path / "res",
+    )  # fmt: skip
+    assert result["this_run"]["failed"] == 1 and result["this_run"]["retried"] == 0
+    (row,) = index_rows(tmp_path / "res").values()
+    assert (row["status"], row["reason"], row["attempts"]) == ("failed", "timed out after 3 s", 1)
+    folder = str(tmp_path / "res" / "tiny" / SUBMITIT_DIR)
+    deadline = time.monotonic() + 10
+    while any(folder in " ".join(argv) for argv in _processes()):  # the job's processes end
+        assert time.monotonic() < deadline, "the timed-out job's processes outlived its cancel"
+        time.sleep(0.2)
+
+
+def _processes() -> list[list[str]]:
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                found.append((entry / "cmdline").read_bytes().decode(errors="replace").split("\0"))
+            except OSError:
+                continue
+    return found
 
 
 def test_a_requeued_task_continues_and_a_cancelled_one_runs_again(
