@@ -90,7 +90,10 @@ def run_tournament(
     if workers is not None and executor in SLURM_KINDS:
         raise UserInputError("--workers is not for --executor slurm; use --slurm-max-parallel")
     planner, planned, root = plan_tournament(path, results_dir)
-    slots = workers or default_workers()
+    if executor in SLURM_KINDS:  # the estimate's wall time: the jobs Slurm runs at once
+        slots = (slurm or SlurmSettings()).max_parallel
+    else:
+        slots = workers or default_workers()
     cost = None
     if estimate and (dry_run or not (root / ESTIMATE_FILE).is_file()):
         # torch and the env kernels: only when asked (and the import is what a worker pays,
