@@ -2,11 +2,12 @@
 
 :func:`slurm_cluster` (session scope) writes a minimal ``slurm.conf`` in a temp folder (private
 ports, one node ``localhost`` with 2 CPUs, partition ``debug``), starts its own ``munged`` on a
-private socket (creating ``/etc/munge/munge.key`` first when missing), then ``slurmctld`` and
-``slurmd``, and waits until ``sinfo`` shows the node idle. ``SLURM_CONF`` points the clients
-(``sbatch``, ``squeue``, ``scancel``, submitit) at it for the session. At teardown every job is
-cancelled and the three daemons are stopped by pid. When a daemon cannot start (not root, the
-packages missing: ``apt-get install slurm-wlm munge``), the tests skip with the reason.
+private socket (writing a random ``/etc/munge/munge.key`` first when missing), then
+``slurmctld`` and ``slurmd``, and waits until ``sinfo`` shows the node idle. ``SLURM_CONF``
+points the clients (``sbatch``, ``squeue``, ``scancel``, submitit) at it for the session. At
+teardown every job is cancelled and the three daemons are stopped by pid. When a daemon cannot
+start (not root, the packages missing: ``apt-get install slurm-wlm munge``), the tests skip
+with the reason.
 """
 
 from __future__ import annotations
@@ -127,10 +128,13 @@ def _stop(pid_file: Path) -> None:
 
 
 def _ensure_munge_key(munge: pwd.struct_passwd) -> None:
+    """A random key, as ``mungekey --create`` writes it, when the machine has none."""
     if MUNGE_KEY.is_file():
         return
     MUNGE_KEY.parent.mkdir(parents=True, exist_ok=True)
-    _run(["mungekey", "--create", f"--keyfile={MUNGE_KEY}"], "mungekey")
+    os.chown(MUNGE_KEY.parent, munge.pw_uid, munge.pw_gid)
+    MUNGE_KEY.parent.chmod(0o700)
+    MUNGE_KEY.write_bytes(os.urandom(128))
     os.chown(MUNGE_KEY, munge.pw_uid, munge.pw_gid)
     MUNGE_KEY.chmod(0o400)
 
@@ -162,6 +166,7 @@ def _start(root: Path) -> SlurmCluster:
             f"--pid-file={sock_dir}/munged.pid",
             f"--log-file={sock_dir}/munged.log",
             f"--seed-file={sock_dir}/munged.seed",
+            f"--key-file={MUNGE_KEY}",
         ],
         "munged",
     )
