@@ -243,12 +243,16 @@ class LocalExecutor:
             if proc.is_alive():
                 proc.kill()
                 proc.join(timeout=5)
-            self._drain(slot, events)  # it may have finished just before the stop
-            if self._holding[slot] is job:
+            tail: list[Event] = []
+            self._drain(slot, tail)
+            # a 'done' sent just before the stop stands; a 'failed' the stop itself caused
+            # (a worker that turns SIGTERM into an exception) is the time-out
+            events.extend(e for e in tail if e.kind != "failed")
+            if not any(e.kind == "done" for e in tail):
                 events.append(Event("failed", job.job_id, slot, proc.pid,
                                     reason=timed_out_reason(self.job_timeout_s),
                                     wall_s=time.monotonic() - since, retry=False))
-                self._holding[slot] = None
+            self._holding[slot] = None
             self._running_since[slot] = None
             conn = self._conns[slot]
             if conn is not None:
