@@ -186,7 +186,6 @@ class SlurmExecutor:
         self._slots: list[Job | None] = [None] * self.workers
         self._buffer: list[tuple[int, Job]] = []
         self._held: dict[str, _Held] = {}
-        self._states: dict[str, str] = {}
         self._queried_at = 0.0
 
     def start(self) -> None:
@@ -240,6 +239,8 @@ class SlurmExecutor:
             return events
         self._queried_at = time.monotonic()
         states = self._query()
+        if states is None:
+            return events  # slurmctld did not answer: ask again at the next poll
         for held in list(self._held.values()):
             self._follow(held, states.get(held.handle.job_id), events)
         self._stop_overdue(events)
@@ -273,9 +274,10 @@ class SlurmExecutor:
         for (slot, job), handle in zip(batch, handles, strict=True):
             self._held[job.job_id] = _Held(slot, job, handle, now)
 
-    def _query(self) -> dict[str, str]:
+    def _query(self) -> dict[str, str] | None:
         """State of every held job: ``squeue`` for Slurm (jobs it no longer knows are left
-        out), the process for submitit's local jobs."""
+        out; None when slurmctld did not answer, so that no running job is taken for lost),
+        the process for submitit's local jobs."""
         if self.cluster == "local":
             return {h.handle.job_id: h.handle.get_info()["jobState"] for h in self._held.values()}
         ids = ",".join(h.handle.job_id for h in self._held.values())
@@ -285,6 +287,8 @@ class SlurmExecutor:
             text=True,
             check=False,
         )
+        if out.returncode != 0 and "Invalid job id" not in out.stderr:
+            return None
         states = {}
         for line in out.stdout.splitlines():
             job_id, _, state = line.strip().partition("|")
