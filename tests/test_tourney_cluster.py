@@ -183,7 +183,7 @@ def test_killing_a_nodes_raylet_reruns_its_job_and_loses_nothing(
     assert len(raylets) == 2, raylets
     second = next(pid for pid, name in raylets.items() if name.endswith("raylet.1"))
     results = tmp_path / "res"
-    proc = _run_cli(ray_cluster, tiny_file(tmp_path), results, "--workers", "2")
+    proc = _run_cli(ray_cluster, tiny_file(tmp_path), results)  # 2 jobs: the cluster's CPUs
     try:
         running = _running_pids(results, proc, 2)  # one job on each node
         on_second = [job for job, pid in running.items() if _parent(pid) == second]
@@ -195,6 +195,7 @@ def test_killing_a_nodes_raylet_reruns_its_job_and_loses_nothing(
             proc.kill()
     assert proc.returncode == 0, err[-2000:]
     result = json.loads(out)
+    assert result["workers"] == 2  # the cluster's CPUs (--workers not given)
     assert result["this_run"]["retried"] == 1 and result["this_run"]["failed"] == 0
     jobs = index_rows(results)
     assert {j: r["status"] for j, r in jobs.items()} == dict.fromkeys(jobs, "done")

@@ -53,7 +53,9 @@ def register(app: typer.Typer) -> None:
             False, "--dry-run", help="Validate every job's settings, print the plan and exit."
         ),
         workers: int | None = typer.Option(
-            None, "--workers", help="Parallel jobs (default: the CPU cores this process may use)."
+            None, "--workers",
+            help="Parallel jobs (default: the CPU cores this process may use; with --executor "
+            "ray --address, the cluster's CPUs).",
         ),
         executor: str = typer.Option(
             "local", "--executor",

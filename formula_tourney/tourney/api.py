@@ -104,7 +104,7 @@ def run_tournament(
     if dry_run:
         out = {"dry_run": True, "results": str(root), "plan": planner.describe(planned)}
         return out if cost is None else {**out, "estimate": cost}
-    pool = make_executor(executor, slots, address, job_timeout_s, slurm, root)
+    pool = make_executor(executor, workers, address, job_timeout_s, slurm, root)
     with RunLock(root):
         if cost is not None:
             atomic_write_json(root / ESTIMATE_FILE, cost)
@@ -117,9 +117,9 @@ def run_tournament(
                               progress)
         started = time.perf_counter()
         try:
+            pool.start()  # first: a Ray cluster's size is known once joined
             if progress is not None:
                 progress.start(pool.workers)
-            pool.start()
             scheduler.run(pool)
         except KeyboardInterrupt:
             scheduler.abandon()

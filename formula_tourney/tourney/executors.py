@@ -334,9 +334,11 @@ class RayExecutor:
     must be on a file system the Ray nodes share, since each task writes its own job folder.
     """
 
-    def __init__(self, workers: int, address: str | None = None,
+    def __init__(self, workers: int | None, address: str | None = None,
                  job_timeout_s: float | None = None) -> None:
-        self.workers = max(1, int(workers))
+        self.workers = max(1, int(workers)) if workers else 0
+        """Jobs queued at once; None given: the cluster's CPUs (known once joined), or this
+        machine's cores for a local instance."""
         self.address = address
         self.job_timeout_s = job_timeout_s
         self._pending: dict[Any, tuple[int, Job, float]] = {}
@@ -363,8 +365,12 @@ class RayExecutor:
                                   "runtime_env": {"env_vars": {k: "1" for k in THREAD_ENV}}}
         if self.address:
             ray.init(address=self.address, **kwargs)
+            if not self.workers:
+                self.workers = max(1, int(ray.cluster_resources().get("CPU", 1)))
         else:
+            self.workers = self.workers or default_workers()
             ray.init(num_cpus=self.workers + 1, **kwargs)  # +1: the progress queue actor
+        self._slots = [None] * self.workers
         self._ray = ray
         _cluster_errors_to_stderr(ray)
         here = NodeAffinitySchedulingStrategy(ray.get_runtime_context().get_node_id(), soft=False)
@@ -468,10 +474,12 @@ def _cluster_errors_to_stderr(ray: Any) -> None:
     worker.print_to_stdstream = to_stderr
 
 
-def make_executor(kind: str, workers: int, address: str | None = None,
+def make_executor(kind: str, workers: int | None, address: str | None = None,
                   job_timeout_s: float | None = None, slurm: SlurmSettings | None = None,
                   results_root: Path | None = None) -> Executor:
     """``local``, ``ray``, ``slurm`` or ``slurm-local``; anything else is a usage error.
+    ``workers`` None: this machine's cores (the pool, a local Ray instance), a Ray cluster's
+    CPUs, or ``--slurm-max-parallel``.
     ``slurm`` holds the ``--slurm-*`` settings (only for the two Slurm kinds); the Slurm kinds
     keep submitit's files under ``results_root``."""
     check_job_timeout(job_timeout_s)
@@ -480,7 +488,7 @@ def make_executor(kind: str, workers: int, address: str | None = None,
     if slurm is not None and kind not in SLURM_KINDS:
         raise UserInputError("--slurm-* options are only for --executor slurm or slurm-local")
     if kind == "local":
-        return LocalExecutor(workers, job_timeout_s)
+        return LocalExecutor(workers or default_workers(), job_timeout_s)
     if kind == "ray":
         return RayExecutor(workers, address, job_timeout_s)
     if kind in SLURM_KINDS:
