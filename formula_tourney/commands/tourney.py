@@ -53,9 +53,15 @@ def register(app: typer.Typer) -> None:
             False, "--dry-run", help="Validate every job's settings, print the plan and exit."
         ),
         workers: int | None = typer.Option(
-            None, "--workers", help="Parallel jobs (default: the CPU cores this process may use)."
+            None, "--workers",
+            help="Parallel jobs (default: the CPU cores this process may use; with --executor "
+            "ray --address, the cluster's CPUs).",
         ),
-        executor: str = typer.Option("local", "--executor", help="local (process pool) or ray."),
+        executor: str = typer.Option(
+            "local", "--executor",
+            help="local (process pool), ray, slurm (Slurm job arrays through submitit) or "
+            "slurm-local (submitit's local processes: the Slurm code path without Slurm).",
+        ),
         address: str | None = typer.Option(
             None, "--address", help="Ray cluster address (default: a local Ray instance)."
         ),
@@ -95,14 +101,42 @@ def register(app: typer.Typer) -> None:
             "max_seeds is reached (the file's [adaptive] table, or its defaults; "
             "docs/claims.md).",
         ),
+        job_timeout_s: float | None = typer.Option(
+            None, "--job-timeout-s",
+            help="Stop a job that runs longer than this and fail it ('timed out after N s'); "
+            "the other jobs go on.",
+        ),
+        slurm_partition: str | None = typer.Option(
+            None, "--slurm-partition", help="slurm: partition (default: the cluster's default)."
+        ),
+        slurm_time_min: int | None = typer.Option(
+            None, "--slurm-time-min",
+            help="slurm: time limit of one job in minutes (default 60); at the limit the job is "
+            "requeued and continues from its files.",
+        ),
+        slurm_mem_gb: float | None = typer.Option(
+            None, "--slurm-mem-gb", help="slurm: memory of one job in GB (default 4)."
+        ),
+        slurm_cpus_per_job: int | None = typer.Option(
+            None, "--slurm-cpus-per-job", help="slurm: CPUs of one job (default 1)."
+        ),
+        slurm_max_parallel: int | None = typer.Option(
+            None, "--slurm-max-parallel",
+            help="slurm: jobs queued or running at once, the job array's cap (default 8).",
+        ),
         as_json: bool = typer.Option(False, "--json", help="Print one JSON document."),
     ) -> None:
         """Run a tournament (again: resume it). Jobs are entrant x seed x part."""
         # agents, sim and the report's readers: not for --help
         from formula_tourney.report.claims.judge import judge
         from formula_tourney.tourney.api import run_tournament
+        from formula_tourney.tourney.slurm_executor import slurm_settings
 
         check_output_path(results, "--results", folder=True)
+        given = {"partition": slurm_partition, "time_min": slurm_time_min,
+                 "mem_gb": slurm_mem_gb, "cpus_per_job": slurm_cpus_per_job,
+                 "max_parallel": slurm_max_parallel}
+        slurm = slurm_settings(**given) if any(v is not None for v in given.values()) else None
         try:
             result = run_tournament(
                 file, workers=workers, executor=executor, address=address, retries=retries,
@@ -110,6 +144,7 @@ def register(app: typer.Typer) -> None:
                 rebuild_index=rebuild_index, progress=None if dry_run else ProgressView(),
                 estimate=estimate, calibrate_s=calibrate_s, cluster_cpus=cluster_cpus,
                 report=message, budget_cpu_h=budget_cpu_h, judge=judge,
+                job_timeout_s=job_timeout_s, slurm=slurm,
             )
         except KeyboardInterrupt:
             raise interrupted() from None

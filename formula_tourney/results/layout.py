@@ -10,6 +10,7 @@ Layout::
     <tournament>/<part>/_baselines/<bot>-<ref>-<track>/  one baseline drive
     <tournament>/<part>/_races/                        a race part's (or `race --races`) races
     <tournament>/optuna/<variant>.journal              tune studies
+    <tournament>/_submitit/                            submitit's job files (--executor slurm)
 
 A job folder: ``config.json`` (schema version + run spec), ``episodes.parquet``,
 ``tests.parquet``, ``laps.parquet``, ``traces/<track>.parquet``, ``checkpoints/``, ``tb/``,
@@ -52,6 +53,9 @@ BASELINE_DIR = "_baselines"
 BASELINE_RESULT_FILE = "result.json"
 BASELINE_TRACE_FILE = "trace.parquet"
 OPTUNA_DIR = "optuna"
+SUBMITIT_DIR = "_submitit"
+"""submitit's files of ``run --executor slurm``: each job's pickled call, its result, and the
+Slurm log of each task (``<jobid>_0_log.out`` / ``.err``)."""
 RACES_DIR = "_races"
 """A series of races (a race part, or ``race --races N --out DIR``): ``race-<k>.json`` per race
 (``RaceResult.to_json``, k from 0), then ``series.json`` (track, settings, seed, entrants and

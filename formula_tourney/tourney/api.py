@@ -19,11 +19,13 @@ from formula_tourney.results.layout import ESTIMATE_FILE
 from formula_tourney.safeio import atomic_write_json
 from formula_tourney.tourney.adaptive import AdaptiveRun, Judge
 from formula_tourney.tourney.estimate import MIN_CALIBRATE_S
-from formula_tourney.tourney.executors import Event, default_workers, make_executor
+from formula_tourney.tourney.executors import SLURM_KINDS, default_workers, make_executor
+from formula_tourney.tourney.job_events import Event
 from formula_tourney.tourney.kinds import KINDS
 from formula_tourney.tourney.lock import RunLock
 from formula_tourney.tourney.plan import PlannedPart, Planner
 from formula_tourney.tourney.scheduler import RunProgress, Scheduler
+from formula_tourney.tourney.slurm_executor import SlurmSettings
 from formula_tourney.tourney.spec import Adaptive, error_at, load_spec
 from formula_tourney.tourney.store import Store
 from formula_tourney.tourney.summary import collect_results
@@ -75,6 +77,8 @@ def run_tournament(
     report: Callable[[str], None] | None = None,
     budget_cpu_h: float | None = None,
     judge: Judge | None = None,
+    job_timeout_s: float | None = None,
+    slurm: SlurmSettings | None = None,
 ) -> dict[str, Any]:
     """Run (or resume) the tournament in ``path``; return the results as plain data.
 
@@ -89,6 +93,8 @@ def run_tournament(
     tournament has none yet (a resume keeps the first). ``report`` hears its progress lines.
     A sequential run (``[adaptive]`` or ``budget_cpu_h``) reads its claims with ``judge``
     after every wave (``report.claims.judge.judge``; the tournament layer reads no report).
+    ``job_timeout_s`` stops and fails a job that runs longer; ``slurm`` holds the settings of
+    ``executor="slurm"`` / ``"slurm-local"`` (``tourney.slurm_executor``).
     """
     if retries < 0:
         raise UserInputError(f"--retries must be >= 0, got {retries}")
@@ -99,10 +105,15 @@ def run_tournament(
                              f"steps and updates; use at least {MIN_CALIBRATE_S:g} s")
     if cluster_cpus is not None and cluster_cpus < 1:
         raise UserInputError(f"--cluster-cpus must be >= 1, got {cluster_cpus}")
+    if workers is not None and executor in SLURM_KINDS:
+        raise UserInputError("--workers is not for --executor slurm; use --slurm-max-parallel")
     planner, planned, root = plan_tournament(path, results_dir, budget_cpu_h)
     if planner.spec.adaptive is not None and judge is None and not dry_run:
         raise ValueError("a sequential run ([adaptive]) needs a judge to read its claims")
-    slots = workers or default_workers()
+    if executor in SLURM_KINDS:  # the estimate's wall time: the jobs Slurm runs at once
+        slots = (slurm or SlurmSettings()).max_parallel
+    else:
+        slots = workers or default_workers()
     cost = None
     if estimate and (dry_run or not (root / ESTIMATE_FILE).is_file()):
         # torch and the env kernels: only when asked (and the import is what a worker pays,
@@ -115,7 +126,7 @@ def run_tournament(
         if planner.spec.adaptive is not None:
             out["adaptive"] = planner.spec.adaptive.model_dump()
         return out if cost is None else {**out, "estimate": cost}
-    pool = make_executor(executor, slots, address)
+    pool = make_executor(executor, workers, address, job_timeout_s, slurm, root)
     with RunLock(root):
         if cost is not None:
             atomic_write_json(root / ESTIMATE_FILE, cost)
@@ -131,9 +142,9 @@ def run_tournament(
                               progress, waves)
         started = time.perf_counter()
         try:
+            pool.start()  # first: a Ray cluster's size is known once joined
             if progress is not None:
                 progress.start(pool.workers)
-            pool.start()
             scheduler.run(pool)
         except KeyboardInterrupt:
             scheduler.abandon()

@@ -10,10 +10,12 @@ then computed again. The scheduler knows no job kind by name: each kind's object
 its finished result, reads that result into the index, and says what a resumed run does with a
 done job whose files are gone (``JobKind.lost_files``). A training run, a baseline drive and a
 race series (a race part's one job, made once its source part promotes) go through the same
-loop. Progress reaches whoever shows it through :class:`RunProgress`. A sequential run
-(``tourney.adaptive.AdaptiveRun``) adds waves: when every queued job has ended, it reads the
-claims and gives the entrants of the undecided ones more seeds, and holds a part open until it
-is settled.
+loop. Progress reaches whoever shows it through :class:`RunProgress`. A job that lost its
+machine (a ``lost`` event) is queued again at once and counted as retried, apart from
+``--retries`` (which is for the job's own failures); a time-out is failed and not retried.
+A sequential run (``tourney.adaptive.AdaptiveRun``) adds waves: when every queued job has
+ended, it reads the claims and gives the entrants of the undecided ones more seeds, and
+holds a part open until it is settled.
 """
 
 from __future__ import annotations
@@ -24,7 +26,8 @@ from typing import Any, Protocol
 
 from formula_tourney.results.folder import CorruptResultError
 from formula_tourney.tourney.adaptive import AdaptiveRun
-from formula_tourney.tourney.executors import Event, Executor
+from formula_tourney.tourney.executors import Executor
+from formula_tourney.tourney.job_events import Event
 from formula_tourney.tourney.jobs import Job
 from formula_tourney.tourney.kinds import KINDS, TRAIN, CannotRun, JobKind, kind_of
 from formula_tourney.tourney.outcomes import general_pick
@@ -32,6 +35,10 @@ from formula_tourney.tourney.plan import PlannedPart, Planner
 from formula_tourney.tourney.promote import promote, rank_entrants
 from formula_tourney.tourney.store import Store
 
+LOST_RERUNS = 3
+"""Times one job is run again in a run after losing the machine under it (a Ray node died, a
+Slurm job was cancelled) before it counts as failed: a job that takes its node down each time
+must not loop forever."""
 QUEUE_ORDER = {name: i for i, name in enumerate(KINDS)}
 """Within a part, jobs queue in the registry's order of their kinds (training runs first)."""
 
@@ -84,6 +91,7 @@ class Scheduler:
         self.queue: list[Job] = []
         self.running: dict[str, tuple[Job, int]] = {}
         self.attempts: dict[str, int] = {}
+        self.lost_runs: dict[str, int] = {}
         self.counts = {"done": 0, "failed": 0, "retried": 0, "skipped": 0, "recovered": 0,
                        "reopened": 0, "lost": 0}  # fmt: skip
         self.lost: list[dict[str, str]] = []
@@ -316,7 +324,23 @@ class Scheduler:
                 self.progress.job_ended(slot, f"done {job.job_id}")
         elif event.kind == "failed":
             del self.running[job.job_id]
-            self._record_failed(job, slot, event.reason, event.wall_s, retry=True)
+            self._record_failed(job, slot, event.reason, event.wall_s, retry=event.retry)
+        elif event.kind == "lost":
+            del self.running[job.job_id]
+            self._record_lost(job, slot, event)
+
+    def _record_lost(self, job: Job, slot: int, event: Event) -> None:
+        """Queue a job that lost its machine again, up to :data:`LOST_RERUNS` times."""
+        runs = self.lost_runs[job.job_id] = self.lost_runs.get(job.job_id, 0) + 1
+        if runs > LOST_RERUNS:
+            self._record_failed(job, slot, f"{event.reason} (lost {runs} times)", event.wall_s,
+                                retry=False)
+            return
+        self.counts["retried"] += 1
+        self.store.mark_pending(job.job_id)
+        self.queue.insert(0, job)
+        if self.progress:
+            self.progress.job_ended(slot, f"LOST {job.job_id} (run again)")
 
     def _record_failed(self, job: Job, slot: int, reason: str, wall_s: float,
                        retry: bool) -> None:
