@@ -15,25 +15,24 @@ baselines. The figures are the product's: the report's time-to-competence table
 milestones (a) first clean lap, (b) beat the follower on the centre line, (c) on the
 min-curvature line, the best lap / reference limit and the clean-start rate.
 
-The anchor, in the same run: Stable-Baselines3 SAC at its defaults (``SAC("MlpPolicy", env,
-seed=seed)``, the ``bench`` extra) on the same env (FormulaRacing-v0 from
-``RunEnvs(spec).make(track, test=False)``: same track, line, LAC, random starts and episode
-length; the raw env reward, as an SB3 user sees it), budget and seeds, tested with the same
-protocol, on the same CPU clock and stop rule (``training.budget``), its milestones read by
-``results.competence`` from the tests table it writes. Each SAC seed runs in its own spawned
-process, ``--jobs`` at a time, after the tournament. Ratios per milestone: our median CPU-s /
-SAC's (goal <= 0.5).
+The anchors, in the same run: Stable-Baselines3 SAC and sb3-contrib CrossQ at their defaults
+(``--anchors sb3:SAC,sb3_contrib:CrossQ``, the ``sb3`` extra), entered as outside entrants
+(``agents/outside``, docs/entrants.md): one more part each in the same tournament, on the same
+env (the first entrant's preset's env keys, e.g. the progress reward of ``best``, and
+``--env-set``), budget, seeds, tests, CPU clock and stop rule, their milestones read from the
+same table. Ratios per milestone: our median CPU-s / the anchor's (goal <= 0.25).
 
 Medians are over seeds with a miss counted as infinite (printed "miss", null in the JSON; a
-failed seed counts as a run that reached nothing). Goals: oval: (b) <= 60 CPU-s, (c) <= 300
-CPU-s, best lap / limit <= 1.02; technical (recorded + LAC): (a) <= 60 CPU-s with clean-start
-rate >= 2/3, (c) <= 3600 CPU-s, best lap / limit <= 1.05. A table goes to stderr; the last line
-of stdout is one JSON object. Seeds must be consecutive (a tournament's seeds are ``seed_base``
-+ 0, 1, ...); ``--out`` reused with the same settings resumes (finished runs are kept).
+failed seed counts as a run that reached nothing). The goals (``GOALS``) are printed as a
+table, figure by figure, with each entrant's value and whether it meets them; an entrant with
+demonstrations is held to the demonstration goals. A table goes to stderr; the last line of
+stdout is one JSON object. Seeds must be consecutive (a tournament's seeds are ``seed_base`` +
+0, 1, ...); ``--out`` reused with the same settings resumes (finished runs are kept).
 
     .venv/bin/python benchmarks/time_to_competence.py [--track oval] [--reference centre] [--lac]
         [--entrants WIN1:best,SAC:best,PER1M:paper,WIN1:best-demos] [--seeds 0,1,2,3]
-        [--jobs 2] [--budget-cpu-s 600] [--to-budget] [--set KEY=VALUE] [--no-sb3] [--out DIR]
+        [--jobs 2] [--budget-cpu-s 600] [--to-budget] [--set KEY=VALUE]
+        [--anchors sb3:SAC,sb3_contrib:CrossQ | --no-sb3] [--out DIR]
 """
 
 from __future__ import annotations
@@ -51,16 +50,14 @@ import json  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
-import traceback  # noqa: E402
 from collections.abc import Iterable, Mapping  # noqa: E402
 from pathlib import Path  # noqa: E402
-from typing import Any  # noqa: E402
+from typing import Any, NamedTuple  # noqa: E402
 
 from formula_tourney.results.competence import (  # noqa: E402
     MILESTONE_LABELS,
     MILESTONES,
     Bots,
-    run_competence,
     summarise,
     thresholds,
 )
@@ -69,15 +66,47 @@ TEST_EVERY = 5
 TEST_STARTS = 3
 DEFAULT_ENTRANTS = "WIN1:best,SAC:best,PER1M:paper,WIN1:best-demos"
 TOURNAMENT = "time-to-competence"
-RATIO_GOAL = 0.5
-GOALS: dict[str, dict[str, Any]] = {
-    "oval": {"setup": "oval", "beat_centre_bot_cpu_s": 60.0, "beat_mincurv_bot_cpu_s": 300.0,
-             "best_lap_to_limit": 1.02, "ratio_vs_sb3": RATIO_GOAL},
-    "technical": {"setup": "technical (recorded + LAC)", "first_clean_lap_cpu_s": 60.0,
-                  "clean_start_rate": 2.0 / 3.0, "beat_mincurv_bot_cpu_s": 3600.0,
-                  "best_lap_to_limit": 1.05, "ratio_vs_sb3": RATIO_GOAL},
+RATIO_GOAL = 0.25
+DEFAULT_ANCHORS = "sb3:SAC,sb3_contrib:CrossQ"
+ANCHOR_LIBRARIES = {"sb3": "SB3", "sb3_contrib": "SB3C"}
+
+
+class Goal(NamedTuple):
+    """One figure of a track's goals: what is measured, its bound and whether every seed must
+    reach it (a median alone lets one seed in four miss)."""
+
+    figure: str
+    key: str  # a milestone's "<name>_cpu_s", "best_lap_to_limit" or "clean_start_rate"
+    bound: float
+    all_seeds: bool = False
+
+
+_RATIOS = Goal("each milestone against each anchor (ours / theirs)", "ratio", RATIO_GOAL)
+GOALS: dict[str, dict[str, list[Goal]]] = {
+    "oval": {"scratch": [
+        Goal("CPU-s until it beats the best bot", "beat_mincurv_bot_cpu_s", 30.0),
+        Goal("best lap / reference limit at the budget (300 CPU-s)", "best_lap_to_limit", 1.015),
+        _RATIOS]},
+    "technical": {
+        "scratch": [
+            Goal("CPU-s to a first clean lap", "first_clean_lap_cpu_s", 60.0, all_seeds=True),
+            Goal("clean laps from >= 2 of 3 starts", "clean_start_rate", 2.0 / 3.0),
+            Goal("CPU-s until it beats the best bot", "beat_mincurv_bot_cpu_s", 600.0,
+                 all_seeds=True),
+            Goal("best lap / reference limit at the budget (3 600 CPU-s)", "best_lap_to_limit",
+                 1.045),
+            _RATIOS],
+        "demos": [
+            Goal("CPU-s until it beats its demonstrator (the best bot)",
+                 "beat_mincurv_bot_cpu_s", 240.0, all_seeds=True),
+            Goal("best lap / reference limit at the budget (3 600 CPU-s)", "best_lap_to_limit",
+                 1.045),
+            _RATIOS]},
+    "flowing": {"scratch": [
+        Goal("CPU-s until it beats the best bot", "beat_mincurv_bot_cpu_s", 1200.0),
+        _RATIOS]},
 }  # fmt: skip
-SB3_LABEL = "SB3 SAC (defaults)"
+"""Per track, from scratch and with demonstrations: the figures the benchmark is held to."""
 
 
 # --- pure functions (tests/test_bench_competence.py) -----------------------------------------
@@ -138,27 +167,60 @@ def ratio(ours: float, anchor: float) -> float | None:
     return ours / anchor if anchor > 0 else None
 
 
-def goal_flags(track: str, summary: Mapping[str, Any],
-               ratios: Mapping[str, float | None] | None) -> dict[str, bool] | None:  # fmt: skip
-    """Which of the goals for ``track`` the entrant's medians meet (None: no goals)."""
-    goals = GOALS.get(track)
+def goal_value(goal: Goal, summary: Mapping[str, Any]) -> float:
+    """The entrant's figure for ``goal``: a median (inf for a miss) or the clean-start rate."""
+    if goal.key == "clean_start_rate":
+        return float(summary["median_clean_start_rate"])
+    if goal.key == "best_lap_to_limit":
+        return float(summary["median_best_lap_to_limit"])
+    return float(summary[f"median_{goal.key}"])
+
+
+Ratios = Mapping[str, Mapping[str, float | None]]
+"""Per anchor label, per milestone: our median CPU-s / the anchor's (``ratio``)."""
+
+
+def goal_flags(track: str, summary: Mapping[str, Any], ratios: Ratios | None,
+               demos: bool = False) -> dict[str, bool] | None:  # fmt: skip
+    """Which of the goals for ``track`` the entrant's medians meet (None: no goals). A ratio
+    goal is met per anchor and milestone where the anchor reached it (ours <= 0.25 x theirs;
+    0 where only the anchor missed), and not met where ours missed."""
+    goals = GOALS.get(track, {}).get("demos" if demos else "scratch")
     if goals is None:
         return None
     flags: dict[str, bool] = {}
-    for name in MILESTONES:
-        key = f"{name}_cpu_s"
-        if key in goals:
-            met = summary[f"median_{name}_cpu_s"] <= goals[key]
-            if name == "first_clean_lap" and "clean_start_rate" in goals:
-                met = met and summary["median_clean_start_rate"] >= goals["clean_start_rate"]
-            flags[key] = bool(met)
-    flags["best_lap_to_limit"] = bool(summary["median_best_lap_to_limit"]
-                                      <= goals["best_lap_to_limit"])  # fmt: skip
-    if ratios is not None:
-        for name in MILESTONES:
-            r = ratios.get(name)
-            flags[f"ratio_{name}"] = r is not None and r <= goals["ratio_vs_sb3"]
+    for goal in goals:
+        if goal.key == "ratio":
+            for anchor, by_milestone in (ratios or {}).items():
+                for name, r in by_milestone.items():
+                    flags[f"ratio_{name}_vs_{anchor}"] = r is not None and r <= goal.bound
+            continue
+        value = goal_value(goal, summary)
+        met = value >= goal.bound if goal.key == "clean_start_rate" else value <= goal.bound
+        if goal.all_seeds and goal.key.endswith("_cpu_s"):
+            name = goal.key.removesuffix("_cpu_s")
+            met = met and summary[f"reached_{name}"] == summary["seeds"]
+        flags[goal.key] = bool(met)
     return flags
+
+
+def parse_anchors(text: str) -> list[tuple[str, str]]:
+    """``--anchors sb3:SAC,sb3_contrib:CrossQ`` -> [(library, algorithm), ...]."""
+    out = []
+    for item in (x.strip() for x in text.split(",")):
+        if not item:
+            continue
+        library, _, algorithm = item.partition(":")
+        if library not in ANCHOR_LIBRARIES or not algorithm:
+            raise SystemExit(f"--anchors: {item!r} is not LIBRARY:ALGORITHM with LIBRARY one of "
+                             f"{', '.join(ANCHOR_LIBRARIES)}")  # fmt: skip
+        out.append((library, algorithm))
+    return out
+
+
+def anchor_variant(library: str, algorithm: str) -> str:
+    """The tournament's variant name of an anchor (``SB3-SAC``, ``SB3C-CrossQ``)."""
+    return f"{ANCHOR_LIBRARIES[library]}-{algorithm}"
 
 
 def stop_lap_s(bots: Bots, to_budget: bool) -> float:
@@ -185,13 +247,22 @@ def _toml(value: Any) -> str:
 
 def tournament_toml(*, track: str, reference: str, lac: bool, entrants: list[tuple[str, str]],
                     seeds: list[int], defaults: Mapping[str, Any],
-                    demos: Mapping[tuple[str, str], Mapping[str, Any]]) -> str:  # fmt: skip
-    """The benchmark's tournament: one part per entrant, each racing the two followers."""
+                    demos: Mapping[tuple[str, str], Mapping[str, Any]],
+                    anchors: list[tuple[str, str]] = ()) -> str:  # fmt: skip
+    """The benchmark's tournament: one part per entrant, each racing the two followers; each
+    anchor is an outside entrant (``[variants.SB3-SAC] sb3 = "SAC"``) with a part of its own,
+    under the first entrant's preset (its env keys: the same reward; its agent settings do
+    not reach an outside entrant)."""
     lines = [f"name = {_toml(TOURNAMENT)}",
              f"description = {_toml(f'time to competence on {track}')}",
              f"seed_base = {seeds[0]}", "", "[defaults]", f"seeds = {len(seeds)}"]
     lines += [f"{key} = {_toml(value)}" for key, value in defaults.items()]
-    for variant, preset in entrants:
+    for library, algorithm in anchors:
+        lines += ["", f"[variants.{anchor_variant(library, algorithm)}]",
+                  f"{library} = {_toml(algorithm)}"]
+    preset0 = entrants[0][1] if entrants else "paper"
+    parts = [*entrants, *((anchor_variant(*a), preset0) for a in anchors)]
+    for variant, preset in parts:
         lines += ["", "[[parts]]", f"name = {_toml(part_name(variant, preset))}",
                   f"entrants = {_toml([variant])}", f"preset = {_toml(preset)}",
                   f"train_tracks = {_toml([track])}",
@@ -249,9 +320,10 @@ def _failed(label: str, seed: int, error: str) -> dict[str, Any]:
 
 # --- our entrants: one tournament --------------------------------------------------------------
 def run_entrants(toml_path: Path, out_root: Path, jobs: int,
-                 entrants: list[tuple[str, str]]) -> dict[str, dict[str, Any]]:  # fmt: skip
+                 parts: dict[str, str]) -> dict[str, dict[str, Any]]:  # fmt: skip
     """Run the tournament through the product and read its time-to-competence table: per
-    entrant label, its runs (failed seeds as misses), demos and beyond-paper labels."""
+    entrant label (``parts``: part name -> label), its runs (failed seeds as misses), demos and
+    beyond-paper labels."""
     from formula_tourney.errors import UserInputError
     from formula_tourney.report.competence_table import competence_table
     from formula_tourney.report.load import load_tournament
@@ -273,7 +345,7 @@ def run_entrants(toml_path: Path, out_root: Path, jobs: int,
         raise SystemExit(f"error: {err}") from None
     data = load_tournament(out_root / TOURNAMENT)
     table = competence_table(Context.build(data))
-    by_part = {part_name(v, p): f"{v}:{p}" for v, p in entrants}
+    by_part = parts
     out: dict[str, dict[str, Any]] = {label: {"runs": []} for label in by_part.values()}
     for record in table.records:
         label = by_part[record["part"]]
@@ -293,115 +365,6 @@ def run_entrants(toml_path: Path, out_root: Path, jobs: int,
     return out
 
 
-# --- one SB3 SAC seed --------------------------------------------------------------------------
-class _Greedy:
-    """SB3's deterministic ``predict`` in the shape ``evaluate.run_test_episode`` drives."""
-
-    class cfg:  # noqa: N801 - read as ``agent.cfg.window``
-        window = 1
-
-    def __init__(self, model: Any) -> None:
-        self.model = model
-
-    def act(self, window: Any) -> Any:
-        action, _ = self.model.predict(window[-1], deterministic=True)
-        return action
-
-    act_eval = act  # tests drive ``act_eval`` (our agents' averaged actor); SB3 keeps none
-
-
-def run_sb3(task: dict[str, Any]) -> dict[str, Any]:
-    """SB3 SAC at its defaults on the run's env, tested as our runs are, on the same CPU clock
-    and stop rule (``training.budget``); its milestones by ``results.competence``."""
-    from formula_tourney.agents.core import configure_torch
-    from formula_tourney.results.folder import JobFolder
-    from formula_tourney.results.metrics import model_clean_lap_s
-    from formula_tourney.training.budget import CpuClock, StopRule, warm_up
-    from formula_tourney.training.envs import RunEnvs
-    from formula_tourney.training.evaluate import (
-        laps_rows,
-        run_test_episode,
-        start_positions,
-        tests_row,
-    )
-    from formula_tourney.training.run_spec import RunSpec
-
-    spec = RunSpec.from_json(task["spec"], "benchmark spec")
-    from stable_baselines3 import SAC
-    from stable_baselines3.common.callbacks import BaseCallback
-    from stable_baselines3.common.logger import Logger
-
-    configure_torch(1)
-    warm_up(spec)
-    bots = Bots(**task["bots"])
-    stop = StopRule(float(task["budget_cpu_s"]), stop_lap_s(bots, bool(task.get("to_budget"))))
-    label, seed, track = task["label"], task["seed"], spec.key_track
-    tests: list[dict[str, Any]] = []
-    laps: list[dict[str, Any]] = []
-
-    clock = CpuClock()
-    clock.start()
-    envs = RunEnvs(spec)
-    env = envs.make(track, test=False)
-    test_env = envs.make(track, test=True)
-    starts = start_positions(envs.tracks[track].length_m, TEST_STARTS)
-    model = SAC("MlpPolicy", env, seed=seed, device="cpu")
-    # SB3's default logger makes a /tmp/SB3-<date> folder per learn(); this one writes nothing
-    model.set_logger(Logger(folder=None, output_formats=[]))
-    greedy = _Greedy(model)
-
-    class Tester(BaseCallback):
-        def __init__(self) -> None:
-            super().__init__()
-            self.episodes = 0
-            self.best = math.inf
-
-        def _on_step(self) -> bool:
-            ended = int(sum(bool(d) for d in self.locals["dones"]))
-            if not ended:
-                return True
-            for _ in range(ended):
-                self.episodes += 1
-                if self.episodes % TEST_EVERY == 0:
-                    drives = [run_test_episode(greedy, test_env, track, s0, seed=seed * 1000 + k,
-                                               record_trace=False)
-                              for k, s0 in enumerate(starts)]  # fmt: skip
-                    steps = int(self.model.num_timesteps)
-                    lap = model_clean_lap_s([d.best_lap_s for d in drives],
-                                            [d.damage for d in drives])  # fmt: skip
-                    if math.isfinite(lap):
-                        self.best = min(self.best, lap)
-                    cpu = clock.seconds()
-                    for d in drives:
-                        tests.append({**tests_row(d, self.episodes, steps, ""), "cpu_s": cpu})
-                        laps.extend(laps_rows(d, self.episodes))
-                    _say(f"{label} seed {seed}", cpu, self.episodes, steps, self.best)
-            return stop.reason(self.best, clock.seconds()) is None
-
-    tester = Tester()
-    model.learn(total_timesteps=10**9, callback=tester)
-    cpu_total = clock.seconds()
-    env.close()
-    test_env.close()
-    job = JobFolder(task["job_dir"])
-    job.path.mkdir(parents=True, exist_ok=True)
-    job.write_tables([], tests, laps)
-    run = run_competence(job.tests(), track, bots)
-    return _run_record(label, {**run, "seed": seed, "cpu_s_total": cpu_total,
-                               "env_steps": int(model.num_timesteps),
-                               "updates": int(getattr(model, "_n_updates", 0)),
-                               "episodes": tester.episodes}, job=str(job.path))  # fmt: skip
-
-
-def run_job(task: dict[str, Any]) -> dict[str, Any]:
-    """An anchor seed in a worker; a crash is reported as a run that reached nothing."""
-    try:
-        return run_sb3(task)
-    except Exception as err:  # noqa: BLE001 - one failed seed must not lose the others
-        traceback.print_exc()
-        return _failed(task["label"], task["seed"], f"{type(err).__name__}: {err}")
-
-
 # --- output ------------------------------------------------------------------------------------
 def _cell(x: float, reached: int | None = None, seeds: int | None = None) -> str:
     text = "miss" if not math.isfinite(x) else f"{x:.1f}"
@@ -411,7 +374,49 @@ def _cell(x: float, reached: int | None = None, seeds: int | None = None) -> str
 def _ratio_cell(r: float | None) -> str:
     if r is None:
         return "- (ours miss)"
-    return "0 (SAC miss)" if r == 0.0 else f"{r:.2f}"
+    return "0 (anchor miss)" if r == 0.0 else f"{r:.2f}"
+
+
+def _all(result: Mapping[str, Any]) -> list[Mapping[str, Any]]:
+    """Our entrants, then the anchors."""
+    return [*result["entrants"], *result.get("anchors", [])]
+
+
+def _goal_cell(goal: Goal, summary: Mapping[str, Any]) -> str:
+    value = goal_value(goal, summary)
+    if not math.isfinite(value):
+        return "miss"
+    text = f"{value:.4f}" if goal.key == "best_lap_to_limit" else (
+        f"{value:.2f}" if goal.key == "clean_start_rate" else f"{value:.1f}")
+    if goal.key.endswith("_cpu_s"):
+        name = goal.key.removesuffix("_cpu_s")
+        text += f" ({summary[f'reached_{name}']} of {summary['seeds']})"
+    return text
+
+
+def goals_table(result: Mapping[str, Any]) -> list[str]:
+    """The track's goals, figure by figure: each entrant's value, the goal and met / NOT met."""
+    lines = []
+    for e in result["entrants"]:
+        kind = "demos" if e.get("demos") else "scratch"
+        goals = GOALS.get(result["track"], {}).get(kind)
+        if goals is None:
+            lines.append(f"{e['label']}: no goals for track {result['track']!r} ({kind})")
+            continue
+        flags = e["goal_met"] or {}
+        how = "with demonstrations" if kind == "demos" else "from scratch"
+        lines.append(f"goals of {e['label']} ({how}):")
+        for goal in goals:
+            if goal.key == "ratio":
+                ratio_flags = {k: v for k, v in flags.items() if k.startswith("ratio_")}
+                met = sum(ratio_flags.values())
+                lines.append(f"  {goal.figure}: {met} of {len(ratio_flags)} <= {goal.bound:g}")
+                continue
+            sign = ">=" if goal.key == "clean_start_rate" else "<="
+            every = ", every seed" if goal.all_seeds else ""
+            lines.append(f"  {goal.figure}: {_goal_cell(goal, e['summary'])}; goal {sign} "
+                         f"{goal.bound:.4g}{every}: {'met' if flags.get(goal.key) else 'NOT met'}")
+    return lines
 
 
 def render(result: Mapping[str, Any]) -> str:
@@ -429,7 +434,7 @@ def render(result: Mapping[str, Any]) -> str:
     ]
     head = ["entrant", *(MILESTONE_LABELS[n] for n in MILESTONES), "best/limit", "clean-start"]
     rows = []
-    for e in [*result["entrants"], *([result["sb3"]] if result["sb3"] else [])]:
+    for e in _all(result):
         s = e["summary"]
         rows.append([
             e["label"],
@@ -438,25 +443,15 @@ def render(result: Mapping[str, Any]) -> str:
             else f"{s['median_best_lap_to_limit']:.4f}",
             f"{s['median_clean_start_rate']:.2f}",
         ])  # fmt: skip
-        if e.get("ratios_vs_sb3") is not None:
-            rows.append(["  ours / SAC", *(_ratio_cell(e["ratios_vs_sb3"][n])
-                                           for n in MILESTONES), "", ""])  # fmt: skip
+        for anchor, by_milestone in (e.get("ratios_vs_anchors") or {}).items():
+            rows.append([f"  ours / {anchor}", *(_ratio_cell(by_milestone[n])
+                                                 for n in MILESTONES), "", ""])  # fmt: skip
     widths = [max(len(str(r[i])) for r in [head, *rows]) for i in range(len(head))]
     fmt = "  ".join(f"{{:<{w}}}" for w in widths)
     lines += [fmt.format(*head), fmt.format(*("-" * w for w in widths))]
     lines += [fmt.format(*r) for r in rows]
-    goals = result["goals"]
-    if goals:
-        lines.append("goals (" + goals["setup"] + "): " + ", ".join(
-            f"{k} <= {v:.3g}" if k != "clean_start_rate" else f"{k} >= {v:.3g}"
-            for k, v in goals.items() if k != "setup"))  # fmt: skip
-        for e in result["entrants"]:
-            flags = e["goal_met"] or {}
-            lines.append(f"  {e['label']}: " + ", ".join(
-                f"{k} {'met' if v else 'NOT met'}" for k, v in flags.items()))  # fmt: skip
-    else:
-        lines.append(f"no goals for track {result['track']!r} (goals: {', '.join(GOALS)})")
-    for e in [*result["entrants"], *([result["sb3"]] if result["sb3"] else [])]:
+    lines += goals_table(result)
+    for e in _all(result):
         for r in e["runs"]:
             if "error" in r:
                 lines.append(f"  {e['label']} seed {r['seed']}: FAILED {r['error']}")
@@ -481,7 +476,7 @@ def plot_curves(result: Mapping[str, Any], out_base: Path) -> list[Path]:
 
     fig, ax = plt.subplots(figsize=(8, 4.8))
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    groups = [*result["entrants"], *([result["sb3"]] if result.get("sb3") else [])]
+    groups = _all(result)
     laps_drawn = []
     for k, entrant in enumerate(groups):
         colour = colours[k % len(colours)]
@@ -542,11 +537,14 @@ def main() -> None:
                     "preset without them)")
     ap.add_argument("--env-set", action="append", default=[], metavar="KEY=VALUE",
                     help="env setting (sim.config.EnvSettings, e.g. track_pos_weight=0) for "
-                    "every entrant and the SB3 anchor alike (repeatable)")
+                    "every entrant and the anchors alike (repeatable)")
     ap.add_argument("--schedule-set", action="append", default=[], metavar="KEY=VALUE",
                     help="schedule setting (training.run_spec.Schedule, e.g. cars=4) for every "
                     "entrant, on top of the benchmark's own (repeatable)")
-    ap.add_argument("--no-sb3", action="store_true", help="skip the SB3 SAC anchor")
+    ap.add_argument("--anchors", default=DEFAULT_ANCHORS, metavar="LIB:ALGO,...",
+                    help="outside entrants at their defaults in the same run (LIB: sb3 or "
+                    "sb3_contrib; the sb3 extra)")
+    ap.add_argument("--no-sb3", action="store_true", help="no anchors")
     ap.add_argument("--to-budget", action="store_true",
                     help="train every run for its whole budget instead of stopping at (c): "
                     "best lap / limit is then the budget's, not the first lap past the best bot")
@@ -556,6 +554,11 @@ def main() -> None:
     args = ap.parse_args()  # fmt: skip
     seeds = parse_seeds(args.seeds)
     entrants = parse_entrants(args.entrants)
+    anchors = [] if args.no_sb3 else parse_anchors(args.anchors)
+    if anchors and importlib.util.find_spec("stable_baselines3") is None:
+        print("stable-baselines3 is not installed (pip install -e '.[sb3]'): no anchors",
+              file=sys.stderr)  # fmt: skip
+        anchors = []
     overrides = parse_overrides(args.set)
     demo_overrides = parse_overrides(args.demos_set)
     env_overrides = parse_overrides(args.env_set)
@@ -564,7 +567,6 @@ def main() -> None:
     from formula_tourney.errors import UserInputError
     from formula_tourney.sim.config import EnvSettings
     from formula_tourney.training.presets import get_preset
-    from formula_tourney.training.run_spec import build_run_spec
 
     try:
         car_overrides = EnvSettings.model_validate(env_overrides).car
@@ -597,46 +599,18 @@ def main() -> None:
     toml_path = out_root / "time_to_competence.toml"
     toml_path.write_text(tournament_toml(
         track=args.track, reference=args.reference, lac=args.lac, entrants=entrants,
-        seeds=seeds, defaults=defaults, demos=demos), encoding="utf-8")  # fmt: skip
+        seeds=seeds, defaults=defaults, demos=demos, anchors=anchors),
+        encoding="utf-8")  # fmt: skip
     print(f"tournament {toml_path}, results under {out_root / TOURNAMENT}", file=sys.stderr)
-    ours = run_entrants(toml_path, out_root, args.jobs, entrants)
+    labels = {part_name(v, p): f"{v}:{p}" for v, p in entrants}
+    preset0 = entrants[0][1] if entrants else "paper"
+    anchor_labels = {part_name(anchor_variant(*a), preset0): anchor_variant(*a) for a in anchors}
+    ours = run_entrants(toml_path, out_root, args.jobs, {**labels, **anchor_labels})
 
-    use_sb3 = not args.no_sb3
-    if use_sb3 and importlib.util.find_spec("stable_baselines3") is None:
-        print("stable-baselines3 is not installed (pip install -e '.[bench]'): skipping the SB3 "
-              "SAC anchor", file=sys.stderr)  # fmt: skip
-        use_sb3 = False
-    sb3 = None
-    if use_sb3:  # the env of a plain spec with the same track, line, LAC and tests (one car)
-        tasks = []
-        for seed in seeds:
-            try:
-                spec = build_run_spec(
-                    variant="WIN1", preset="paper", seed=seed, train_tracks=[args.track],
-                    reference=args.reference, lac=args.lac, device="cpu", threads=1,
-                    env_overrides=env_overrides or None, schedule=schedule,
-                    source="the SB3 anchor")  # fmt: skip
-            except UserInputError as err:
-                raise SystemExit(f"error: {err}") from None
-            tasks.append({"label": SB3_LABEL, "seed": seed, "spec": spec.to_json(),
-                          "bots": vars(bots), "budget_cpu_s": args.budget_cpu_s,
-                          "to_budget": args.to_budget,
-                          "job_dir": str(out_root / "sb3-sac" / f"seed-{seed}")})  # fmt: skip
-        if args.jobs > 1 and len(tasks) > 1:
-            import multiprocessing as mp
-            from concurrent.futures import ProcessPoolExecutor
-
-            from formula_tourney.tourney.executors import die_with_parent
-
-            # a run killed from the shell takes its workers with it (orphans took the cores)
-            with ProcessPoolExecutor(min(args.jobs, len(tasks)), mp.get_context("spawn"),
-                                     initializer=die_with_parent,
-                                     initargs=(os.getpid(),)) as pool:  # fmt: skip
-                sb3_runs = list(pool.map(run_job, tasks))
-        else:
-            sb3_runs = [run_job(t) for t in tasks]
-        sb3 = {"label": SB3_LABEL, "call": 'SAC("MlpPolicy", env, seed=seed, device="cpu")',
-               "summary": summarise(sb3_runs), "runs": sorted(sb3_runs, key=lambda r: r["seed"])}
+    anchor_results = []
+    for label in anchor_labels.values():
+        runs = sorted(ours[label]["runs"], key=lambda r: r["seed"])
+        anchor_results.append({"label": label, "summary": summarise(runs), "runs": runs})
     goals = GOALS.get(args.track)
     if goals and args.track == "technical" and (args.reference != "recorded" or not args.lac):
         print("note: technical's goals are set for --reference recorded --lac", file=sys.stderr)
@@ -645,16 +619,15 @@ def main() -> None:
         label = f"{variant}:{preset}"
         mine = sorted(ours[label]["runs"], key=lambda r: r["seed"])
         s = summarise(mine)
-        ratios = None
-        if sb3 is not None:
-            ratios = {n: ratio(s[f"median_{n}_cpu_s"], sb3["summary"][f"median_{n}_cpu_s"])
-                      for n in MILESTONES}  # fmt: skip
+        ratios = {a["label"]: {n: ratio(s[f"median_{n}_cpu_s"], a["summary"][f"median_{n}_cpu_s"])
+                               for n in MILESTONES} for a in anchor_results}  # fmt: skip
         results.append({
             "label": label, "variant": variant, "preset": preset,
             "part": part_name(variant, preset),
             "demos": ours[label].get("demos"), "beyond_paper": ours[label].get("beyond_paper"),
-            "summary": s, "ratios_vs_sb3": ratios,
-            "goal_met": goal_flags(args.track, s, ratios), "runs": mine,
+            "summary": s, "ratios_vs_anchors": ratios,
+            "goal_met": goal_flags(args.track, s, ratios, bool(ours[label].get("demos"))),
+            "runs": mine,
         })  # fmt: skip
     result = {
         "benchmark": "time_to_competence", "track": args.track, "reference": args.reference,
@@ -665,14 +638,15 @@ def main() -> None:
         "overrides": overrides,
         "demo_overrides": demo_overrides, "env_overrides": env_overrides,
         "schedule_overrides": schedule_overrides, "bots": vars(bots),
-        "goals": goals, "entrants": results, "sb3": sb3, "out": str(out_root),
+        "goals": {kind: [g._asdict() for g in gs] for kind, gs in (goals or {}).items()},
+        "entrants": results, "anchors": anchor_results, "out": str(out_root),
         "tournament": str(toml_path),
     }  # fmt: skip
     print(render(result), file=sys.stderr)
     if args.plot:
         for path in plot_curves(result, Path(args.plot)):
             print(f"wrote {path}", file=sys.stderr)
-    for e in [*results, *([sb3] if sb3 else [])]:
+    for e in [*results, *anchor_results]:
         e["summary"] = _json_summary(e["summary"])
     print(json.dumps(result, default=_json_default, allow_nan=False))
 
