@@ -26,9 +26,11 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/formula-tourney demo
 
+# One pytest worker per core, a test file to a worker (files share fixtures such as a Slurm
+# cluster); many tests wait on subprocesses, daemons and worker pools, so two overlap well.
 test: $(STAMP)
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --dist loadfile
 
 # Style and the repository's own rule: no citation of issues, sessions or files outside it.
 lint: $(STAMP)

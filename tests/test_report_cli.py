@@ -121,7 +121,7 @@ def test_report_writes_several_formats_in_one_call(results: Path, tmp_path: Path
     assert "| win4 | **27.07** | **27.17** |" in md
     assert "\\textbf{27.07}" in (tmp_path / "report.tex").read_text()
     assert "<td class='best'>27.07</td>" in (tmp_path / "report.html").read_text()
-    assert f"wrote report.html: {tmp_path / 'report.html'}" in " ".join(err.split())
+    assert f"wrotereport.html:{tmp_path / 'report.html'}" in "".join(err.split())  # wrapped
     code, out, _ = _run(["report", "--results", str(results), "--part", "part1", "--out",
                          str(tmp_path / "two"), "--latex", "--html", "--no-figures", "--json"],
                         capsys)

@@ -97,7 +97,7 @@ def test_a_requeued_task_continues_and_a_cancelled_one_runs_again(
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        env={**os.environ, FAULTS_ENV: json.dumps({"p1/*": "sleep:4"})},  # sbatch passes it on
+        env={**os.environ, FAULTS_ENV: json.dumps({"p1/*": "sleep:10"})},  # sbatch passes it on
     )
     try:
         deadline = time.monotonic() + 60

@@ -98,7 +98,7 @@ def register(app: typer.Typer) -> None:
         budget_cpu_h: float | None = typer.Option(
             None, "--budget-cpu-h", help="Run sequentially: seeds added in waves where the "
             "claims are undecided, until they are decided, this many CPU-hours are spent or "
-            "max_seeds is reached (the file's [adaptive] table, or its defaults; "
+            "max_seeds is reached (the file's adaptive table, or its defaults; "
             "docs/claims.md).",
         ),
         job_timeout_s: float | None = typer.Option(

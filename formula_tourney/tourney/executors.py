@@ -373,7 +373,7 @@ class RayExecutor:
                 self.workers = max(1, int(ray.cluster_resources().get("CPU", 1)))
         else:
             self.workers = self.workers or default_workers()
-            ray.init(num_cpus=self.workers + 1, **kwargs)  # +1: the progress queue actor
+            ray.init(address="local", num_cpus=self.workers + 1, **kwargs)  # +1: the queue actor
         self._slots = [None] * self.workers
         self._ray = ray
         _cluster_errors_to_stderr(ray)
