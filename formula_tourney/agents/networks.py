@@ -290,10 +290,9 @@ class BNCritic(nn.Module):
         return self.out(x).squeeze(1)
 
 
-class BNTwinCritic(nn.Module):
-    """CrossQ's Q1 and Q2: two :class:`BNCritic` s, values stacked ``(2, B)`` (row 0 is Q1)."""
-
-    recurrent = False
+class BNTwinCritic(TwinCritic):
+    """CrossQ's Q1 and Q2: :class:`TwinCritic`'s pair and stacking with two :class:`BNCritic`
+    s (CrossQ reads values only, never ``q_pair``)."""
 
     def __init__(
         self,
@@ -303,14 +302,11 @@ class BNTwinCritic(nn.Module):
         hidden: tuple[int, int] = (256, 256),
         momentum: float = 0.01,
     ) -> None:
-        super().__init__()
+        nn.Module.__init__(self)  # TwinCritic's own critics are MLPs: these are built here
         self.window = window
+        self.layer_norm = False
         self.q1 = BNCritic(obs_dim, action_dim, window, hidden, momentum)
         self.q2 = BNCritic(obs_dim, action_dim, window, hidden, momentum)
-
-    def forward(self, obs_window: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        """``(2, B)``: [Q1(s, a); Q2(s, a)]."""
-        return torch.stack([self.q1(obs_window, action), self.q2(obs_window, action)])
 
 
 class SquashedGaussianActor(nn.Module):
