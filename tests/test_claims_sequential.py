@@ -101,3 +101,35 @@ def test_paired_differences_pair_by_seed_order_and_subtract_a_bot() -> None:
     assert paired_differences([3.0, 4.0, 5.0], [1.0, 1.0]).tolist() == [2.0, 3.0]
     assert paired_differences([3.0, 4.0], [2.5], b_fixed=True).tolist() == [0.5, 1.5]
     assert paired_differences([2.0], [1.0, 3.0], a_fixed=True).tolist() == [1.0, -1.0]
+
+
+def _bot_null(seed: int) -> tuple[np.ndarray, float, float]:
+    """RUNS sequential runs of differences run - bot where the bot sits 1 s from the best
+    possible lap and a run counts up to 19 s slower: differences in [-19, 1] with mean 0 (a
+    skewed spread: most runs a little faster than the bot, a few far slower)."""
+    rng = np.random.default_rng(seed)
+    low, high = -19.0, 1.0
+    share = rng.beta(9.5, 0.5, (RUNS, MAX_SEEDS))  # mean 0.95: the null's place in the span
+    return low + (high - low) * share, low, high
+
+
+def test_a_bot_comparison_keeps_its_error_on_the_narrow_span() -> None:
+    d, low, high = _bot_null(seed=13)
+    assert abs(d.mean()) < 0.05
+    x = (d - low) / (high - low)
+    gone = rejected(x, -low / (high - low))[..., 0]
+    assert gone[:, LOOKS - 1].any(axis=1).mean() <= 0.05
+
+
+def test_a_bot_comparison_decides_sooner_on_its_span_than_on_the_symmetric_range() -> None:
+    # runs ~15 s slower than a bot that is 1 s off the best lap (a 20 s bound): the span
+    # [-19, 1] decides from 3 pairs, the symmetric [-20, 20] needs 9
+    slower = [-15.0, -14.0, -16.0, -15.5, -14.5, -15.0, -16.0, -15.0, -15.0]
+    spans = [confidence_sequence(slower[:n], 20.0, span=(-19.0, 1.0)) for n in range(1, 10)]
+    symmetric = [confidence_sequence(slower[:n], 20.0) for n in range(1, 10)]
+    first = [next(n for n, s in enumerate(seqs, 1) if s.verdict == "below")
+             for seqs in (spans, symmetric)]
+    assert first == [3, 9]
+    assert spans[-1].high < 0.0 and spans[-1].low >= -19.0
+    with pytest.raises(ValueError, match="span"):
+        confidence_sequence([1.0], 20.0, span=(-30.0, 1.0))

@@ -72,6 +72,21 @@ def test_job_cost_under_an_env_step_budget_by_hand() -> None:
     assert job_cost(spec(env_steps=5000), rates()).cpu_s == job_cost(spec(), rates()).cpu_s
 
 
+def test_job_cost_under_a_cpu_budget_by_hand() -> None:
+    """A 1 CPU-s budget: the clock counts steps, updates and test rounds (0.41 s a round of
+    2 starts and a checkpoint, every 4 x 50 steps: 0.00205 s a step). 100 exploring steps
+    cost 0.215 s, the rest of the budget buys 0.785 / 0.00315 steps with an update each, and
+    the run stops half an episode later on average. Shared cores do not grow the budget."""
+    cost = job_cost(spec(episodes=1000, budget_cpu_s=1.0), rates())
+    reach = 100 + (1.0 - 100 * (1e-4 + 0.00205)) / (1e-4 + 1e-3 + 0.00205)
+    assert cost.env_steps == pytest.approx(reach + 25.0) and cost.clock_s == 1.0
+    # the bound: the budget, one more 100-step episode and a last round at 300-step tests
+    assert cost.cpu_s_max == pytest.approx(0.5 + 1.0 + 100 * 1.1e-3 + 2 * 0.2 + 0.01)
+    assert cost.scaled(2.0).cpu_s == pytest.approx(1.0 + (cost.cpu_s - 1.0) * 2.0)
+    # a budget the episodes never reach changes nothing
+    assert job_cost(spec(budget_cpu_s=100.0), rates()) == job_cost(spec(), rates())
+
+
 def job(seconds: float) -> JobCost:
     return JobCost(0.0, 0.0, 0, seconds, 0.0, seconds)
 

@@ -130,9 +130,11 @@ def test_shipped_tournaments_validate() -> None:
         assert spec.name == name
         assert Planner(spec, root / f"{name}.toml", text, Path("unused")).validate() > 0
     spec, _ = load_spec(root / "replication.toml")
-    seeds = {p.name: spec.settings(p)["seeds"] for p in spec.parts}
-    assert (seeds["r1-oval"], seeds["r2-technical"], seeds["r3-lac-flowing"],
-            seeds["r5-adopted"]) == (7, 5, 12, 10)  # sized by the pilot (docs/claims.md)
+    assert spec.adaptive is not None and spec.adaptive.budget_cpu_h == 4  # sequential
+    budgets = {p.name: spec.settings(p)["budget_cpu_s"] for p in spec.parts}
+    assert [budgets[p] for p in ("r1-oval", "r2-technical", "r3-lac-flowing")] == [150, 240, 240]
+    assert {spec.settings(p)["preset"] for p in spec.parts} == {"best"}  # from scratch
+    assert all(spec.settings(p)["demos"] is None for p in spec.parts)
     spec, _ = load_spec(root / "study1.toml")
     assert spec.settings(spec.parts[0])["seeds"] == 10
     assert spec.settings(spec.parts[0])["episodes"] == 500

@@ -26,7 +26,8 @@ bound, and its bets adapt to the observed spread: for the few, skewed, sometimes
 times of a tournament it is exact at every sample size, where a normal mixture is only
 asymptotically valid.
 
-Differences ``d`` in ``[-bound, bound]`` are mapped to ``x = (d + bound) / (2 bound)``; the
+Differences ``d`` in ``[-bound, bound]`` (or a narrower known span ``[low, high]``: a comparison
+with a bot, whose lap is one fixed value) are mapped to ``x = (d - low) / (high - low)``; the
 bound comes from the data model (``report.claims.evidence``: a lap time lies between the
 track's reference limit and the longest lap a test can time, a miss counts as that longest
 lap; a share of tracks lies in [0, 100]; a CPU time to a milestone in [0, budget]).
@@ -114,28 +115,44 @@ class Sequence:
 
 
 def confidence_sequence(
-    diffs: np.ndarray | list[float], bound: float, threshold: float = 0.0, alpha: float = ALPHA
+    diffs: np.ndarray | list[float],
+    bound: float,
+    threshold: float = 0.0,
+    alpha: float = ALPHA,
+    span: tuple[float, float] | None = None,
 ) -> Sequence:
     """The CS of the mean of ``diffs`` (in their order: the order the values came, e.g. by
-    seed), each in ``[-bound, bound]`` (values beyond it are clipped to it), read at the last
-    value with the running intersection, and whether it excludes ``threshold``."""
+    seed), each in ``[-bound, bound]`` or, where known, the narrower ``span`` ``(low, high)``
+    inside it (values beyond it are clipped to it), read at the last value with the running
+    intersection, and whether it excludes ``threshold``.
+
+    ``span`` is what a comparison against a fixed value (a bot's lap) knows: every difference
+    is a run's score less that one value, so it lies in ``[miss - value, best - value]``, one
+    bound wide instead of two. Near an end of that span the bets against the threshold may be
+    large (a truncated bet ``c / m`` grows as the threshold nears an end), so a run far on the
+    other side of a bot that sits near the best possible lap decides in a few pairs where the
+    symmetric range needs at least seven (runs 15 s slower than a bot 1 s off the best lap,
+    bound 20 s: 3 pairs against 9, tests/test_claims_sequential.py)."""
     d = np.asarray(diffs, dtype=float).ravel()
     if not (math.isfinite(bound) and bound > 0.0):
         raise ValueError(f"a confidence sequence needs a finite bound > 0, got {bound}")
+    lo, hi = (-bound, bound) if span is None else (float(span[0]), float(span[1]))
+    if not (math.isfinite(lo) and math.isfinite(hi) and -bound <= lo < hi <= bound):
+        raise ValueError(f"a span must lie in [-{bound}, {bound}] with low < high, got {span}")
     if d.size == 0:
         nan = math.nan
-        return Sequence(0, nan, -bound, bound, bound, threshold, "empty")
-    d = np.clip(d, -bound, bound)
-    x = (d + bound) / (2.0 * bound)
-    m0 = (threshold + bound) / (2.0 * bound)
+        return Sequence(0, nan, lo, hi, bound, threshold, "empty")
+    d = np.clip(d, lo, hi)
+    scale = hi - lo
+    x = (d - lo) / scale
+    m0 = min(max((threshold - lo) / scale, 0.0), 1.0)
     grid = np.unique(np.concatenate([np.linspace(0.0, 1.0, GRID_POINTS), [m0]]))
     gone = rejected(x, grid, alpha)[-1]
     kept = grid[~gone]
-    scale = 2.0 * bound
     if kept.size == 0:  # every candidate left: the CS is empty, read as a point at the mean
         low = high = float(d.mean())
     else:
-        low, high = float(kept.min()) * scale - bound, float(kept.max()) * scale - bound
+        low, high = float(kept.min()) * scale + lo, float(kept.max()) * scale + lo
     at = int(np.searchsorted(grid, m0))
     verdict = "open"
     if gone[at]:

@@ -108,14 +108,20 @@ SEQUENTIAL = {"above": SUPPORTED, "below": CONTRADICTED, "open": INCONCLUSIVE, "
 def sequence_of(a: Sequence[float], b: Sequence[float], a_fixed: bool, b_fixed: bool,
                 scale: Scale) -> sequential.Sequence | None:
     """The confidence sequence of A - B (scores in seed order; -inf counts as the miss, nan
-    is no value); None without runs on a side or without a finite bound."""
+    is no value); None without runs on a side or without a finite bound. Against a fixed side
+    the differences lie in a span one bound wide (``sequential.confidence_sequence``)."""
     a, b = _arr(a), _arr(b)
     if a.size == 0 or b.size == 0 or not (math.isfinite(scale.bound) and scale.bound > 0):
         return None
     fa = np.clip(np.where(np.isneginf(a), scale.miss, a), scale.miss, scale.best)
     fb = np.clip(np.where(np.isneginf(b), scale.miss, b), scale.miss, scale.best)
     diffs = sequential.paired_differences(fa, fb, a_fixed, b_fixed)
-    return sequential.confidence_sequence(diffs, scale.bound)
+    span = None  # a fixed side (a bot's one value) narrows the differences to one bound's width
+    if b_fixed:
+        span = (scale.miss - float(fb[0]), scale.best - float(fb[0]))
+    elif a_fixed:
+        span = (float(fa[0]) - scale.best, float(fa[0]) - scale.miss)
+    return sequential.confidence_sequence(diffs, scale.bound, span=span)
 
 
 def _arr(values: Sequence[float] | np.ndarray) -> np.ndarray:

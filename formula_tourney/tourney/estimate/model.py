@@ -69,12 +69,19 @@ class JobCost:
     choice_below_s: float = 0.0
     choice_above_s: float = 0.0
     """How much cheaper / dearer the job is if the cheapest / dearest candidate is promoted."""
+    clock_s: float = 0.0
+    """The part of ``cpu_s`` that is the run's own CPU budget (``budget_cpu_s``): cores shared
+    with other workers make a budgeted run do less in it, not spend more."""
 
     def scaled(self, factor: float) -> JobCost:
-        return JobCost(self.env_steps * factor, self.updates * factor,
-                       int(round(self.test_episodes * factor)), self.cpu_s * factor,
-                       self.cpu_s_se * factor, self.cpu_s_max * factor, self.group,
-                       self.choice_below_s * factor, self.choice_above_s * factor)
+        """The job on cores shared by the run's workers, each ``factor`` slower: its CPU beyond
+        its own budget grows by ``factor``."""
+        def grow(x: float) -> float:
+            return self.clock_s + (x - self.clock_s) * factor
+
+        return JobCost(self.env_steps, self.updates, self.test_episodes, grow(self.cpu_s),
+                       self.cpu_s_se * factor, grow(self.cpu_s_max), self.group,
+                       self.choice_below_s * factor, self.choice_above_s * factor, self.clock_s)
 
 
 def combined_se(jobs: list[JobCost]) -> float:
@@ -141,11 +148,23 @@ def job_cost(spec: RunSpec, rates: Rates, fixed_s: float | None = None) -> JobCo
     def updates_for(n_steps: float) -> float:
         return max(0.0, n_steps - learn_from + 1) * ups
 
-    rounds = count_test_rounds(episodes, sch.test_every_episodes)
-    tests = rounds * sch.test_starts * len(spec.test_tracks)
     per_round = (1 + int(sch.save_test_checkpoints)) * rates.checkpoint_s
     t_step, t_upd = rates.env_step.mean_s, rates.update.mean_s
     fixed = rates.setup_s if fixed_s is None else fixed_s
+    budgeted, clock = False, 0.0
+    if sch.budget_cpu_s is not None:  # the run's clock counts its steps, updates and tests
+        round_s = sch.test_starts * len(spec.test_tracks) * rates.test_episode_s + per_round
+        test_per_step = round_s / (sch.test_every_episodes * max(length, 1.0))
+        explore = learn_from * (t_step + test_per_step)
+        budget = float(sch.budget_cpu_s)
+        reach = (budget / (t_step + test_per_step) if explore >= budget
+                 else learn_from + (budget - explore) / (t_step + ups * t_upd + test_per_step))
+        if reach < steps:  # it stops at the first episode end past its budget
+            budgeted, clock = True, budget
+            steps = reach + 0.5 * length
+            episodes = min(sch.episodes, math.ceil(steps / max(length, 1.0)))
+    rounds = count_test_rounds(episodes, sch.test_every_episodes)
+    tests = rounds * sch.test_starts * len(spec.test_tracks)
     cpu = (fixed + steps * t_step + updates_for(steps) * t_upd
            + tests * rates.test_episode_s + rounds * per_round)  # fmt: skip
     learning = steps > learn_from
@@ -158,10 +177,17 @@ def job_cost(spec: RunSpec, rates: Rates, fixed_s: float | None = None) -> JobCo
     full = float(sch.episodes * sch.max_steps)
     if sch.env_steps is not None:  # the run ends at the first episode end past the budget
         full = min(full, float(sch.env_steps + sch.max_steps))
+    test_max_s = max(rates.test_episode_s, sch.test_max_steps * rates.test_step_s)
     cpu_max = (fixed + full * t_step + updates_for(full) * t_upd
-               + tests * max(rates.test_episode_s, sch.test_max_steps * rates.test_step_s)
-               + rounds * per_round)  # fmt: skip
-    return JobCost(steps, updates_for(steps), tests, cpu, math.sqrt(var), cpu_max)
+               + tests * test_max_s + rounds * per_round)  # fmt: skip
+    if budgeted:  # its clock's budget, one more episode and its last test round at their limits
+        assert sch.budget_cpu_s is not None
+        tail = (sch.max_steps * (t_step + ups * t_upd)
+                + sch.test_starts * len(spec.test_tracks) * test_max_s + per_round)
+        cpu_max = min(cpu_max, fixed + float(sch.budget_cpu_s) + tail)
+        var = (0.5 * length * (t_step + ups * t_upd)) ** 2  # where in an episode it stops
+    return JobCost(steps, updates_for(steps), tests, cpu, math.sqrt(var), cpu_max,
+                   clock_s=clock)
 
 
 def _finite(x: float) -> float:
@@ -196,6 +222,7 @@ class PartCost:
             "cpu_s_high": cpu + Z95 * se + above,
             "cpu_s_max": sum(j.cpu_s_max for j in self.jobs) + sum(self.baselines_s),
             "cpu_h": cpu / 3600.0, "promoted_from": self.source, "assumed": self.assumed,
+            "clock_s": sum(j.clock_s for j in self.jobs),
         }  # fmt: skip
 
 
@@ -242,8 +269,10 @@ class Estimate:
         for row in rows:  # each worker pays its start once, in the first part it serves
             starts = min(left, row["jobs"] + row["baselines"])
             left -= starts
+            clock = row.pop("clock_s")  # budgeted runs' own CPU budgets: not slowed
             for key in ("cpu_s", "cpu_s_low", "cpu_s_high", "cpu_s_max"):
-                row[key] = (row[key] + starts * per_worker) * self.contention
+                row[key] = (max(row[key] - clock, 0.0) + starts * per_worker) * self.contention \
+                    + min(clock, row[key])
             row["cpu_h"] = row["cpu_s"] / 3600.0
         cpu = sum(r["cpu_s"] for r in rows)
         low = sum(r["cpu_s_low"] for r in rows)
@@ -307,7 +336,7 @@ def adaptive_cost(parts: list[PartCost], rows: list[dict[str, Any]], design: Ada
     floor, floor_high = float(total["cpu_s"]), float(total["cpu_s_high"])
     extra = extra_high = 0.0
     for part, row in zip(parts, rows, strict=True):
-        train = sum(j.cpu_s for j in part.jobs) * contention
+        train = sum(j.scaled(contention).cpu_s for j in part.jobs)
         if train <= 0.0:
             continue
         extra += train * scale
