@@ -80,6 +80,30 @@ def test_a_slow_end_pays_minus_slow_penalty_and_damage_is_its_own_part() -> None
     assert hits >= 1  # a wall hit costs damage_weight x its damage
 
 
+@pytest.mark.parametrize("weight", [0.0, 0.002])
+def test_leaving_the_track_at_speed_pays_the_kinetic_energy_wall_penalty(weight: float) -> None:
+    """Steered off the straight at 25 m/s and at 10 m/s: the off-track end pays -1 less
+    wall_energy_weight x Vx^2 at the step it left (the faster start leaves at ~16 m/s: -1.5),
+    the end part carries it, and at weight 0 it is the paper's -1 at any speed."""
+    ends = {}
+    for speed in (25.0, 10.0):
+        env = FormulaRacingEnv(config={"track": TRACK, "wall_energy_weight": weight})
+        env.reset(options={"start_s_m": 100.0, "start_speed_mps": speed})
+        term, steps = False, 0
+        while not term and steps < 100:
+            obs, r, term, _, info = env.step(np.array([1.0, 0.0, 0.0], np.float32))
+            steps += 1
+        assert info["termination"] == "off_track"
+        vx = obs[K.OBS_VX] * K.SPEED_SCALE_MPS
+        assert r == pytest.approx(-1.0 - weight * vx * vx, rel=1e-6)
+        assert dict(info["rewards"]) == dict.fromkeys(R.PARTS, 0.0) | {"end": r}
+        ends[speed] = r
+    if weight:
+        assert ends[25.0] < -1.4 and ends[25.0] < ends[10.0] < -1.0
+    else:
+        assert ends == {25.0: -1.0, 10.0: -1.0}
+
+
 def test_vector_parts_are_arrays_over_cars_and_sum_to_the_rewards() -> None:
     """Six cars with random actions, autoresets included: each car's parts sum to its reward
     (1e-9), and a car reset this step is paid nothing."""
@@ -112,7 +136,7 @@ def test_the_kernel_packing_comes_from_the_models_table() -> None:
     assert K.O_REWARD_IN + len(R.INPUT_NAMES) == K.N_OUT
     slots = {"track_pos_weight": K.C_TRACKPOS_W, "progress_reward": K.C_PROGRESS,
              "damage_weight": K.C_DMG_W, "slow_penalty": K.C_SLOW_PEN,
-             "early_end_reward": K.C_END_REWARD}
+             "early_end_reward": K.C_END_REWARD, "wall_energy_weight": K.C_WALL_E}
     assert sorted(slots) == sorted(R.KERNEL_NAMES)
     assert sorted(slots.values()) == list(range(K.C_REWARD, K.N_CFG))
     others = [v for k, v in vars(K).items() if k.startswith("C_") and k != "C_REWARD"
@@ -125,7 +149,7 @@ def test_the_kernel_packing_comes_from_the_models_table() -> None:
     block = env._b.cfg[K.C_REWARD:]
     assert dict(zip(R.KERNEL_NAMES, block.tolist(), strict=True)) == {
         "track_pos_weight": 0.4, "progress_reward": 1.0, "damage_weight": 0.5,
-        "slow_penalty": 3.0, "early_end_reward": -1.0}
+        "slow_penalty": 3.0, "early_end_reward": -1.0, "wall_energy_weight": 0.0}
 
 
 def test_each_setting_is_declared_once_in_the_table() -> None:
@@ -142,7 +166,7 @@ def test_each_setting_is_declared_once_in_the_table() -> None:
         assert added_in_layout(field) == s.added_in_layout
         assert beyond_paper(field) == s.beyond_paper
     assert [s.name for s in R.SETTINGS if s.beyond_paper] == [
-        "track_pos_weight", "progress_reward", "crash_penalty"]
+        "track_pos_weight", "progress_reward", "wall_energy_weight", "crash_penalty"]
     with pytest.raises(ValueError, match="less than or equal to 10"):
         EnvSettings(track_pos_weight=11.0)
     with pytest.raises(ValueError, match="greater than 0"):

@@ -124,6 +124,7 @@ class EnvSettings(BaseModel):
     damage_weight: Real = R.BY_NAME["damage_weight"].field()
     track_pos_weight: Real = R.BY_NAME["track_pos_weight"].field()
     progress_reward: Boolean = R.BY_NAME["progress_reward"].field()
+    wall_energy_weight: Real = R.BY_NAME["wall_energy_weight"].field()
     start_speed_mps: Real = Field(
         0.0, ge=0.0, le=100.0, description="Speed at reset along the reference line."
     )

@@ -203,6 +203,7 @@ C_PROGRESS = C_REWARD + R.kernel_slot("progress_reward")  # 1: progress replaces
 C_DMG_W = C_REWARD + R.kernel_slot("damage_weight")
 C_SLOW_PEN = C_REWARD + R.kernel_slot("slow_penalty")
 C_END_REWARD = C_REWARD + R.kernel_slot("early_end_reward")  # an off-track or backwards end
+C_WALL_E = C_REWARD + R.kernel_slot("wall_energy_weight")  # off track: less this x Vx^2
 N_CFG = C_REWARD + len(R.KERNEL_NAMES)
 
 # --- per-step outputs --------------------------------------------------------------------------
@@ -1106,6 +1107,8 @@ def score_step(st: np.ndarray, o: np.ndarray, obs_row: np.ndarray, dist0: float,
         term = TERM_SLOW
     if term in (TERM_OFF_TRACK, TERM_BACKWARDS):
         reward = cfg[C_END_REWARD]
+        if term == TERM_OFF_TRACK and cfg[C_WALL_E] > 0.0:  # the wall's price grows with Vx^2
+            reward -= cfg[C_WALL_E] * vx * vx
     elif term == TERM_SLOW:
         reward = -cfg[C_SLOW_PEN]
     o[O_REWARD] = reward

@@ -94,6 +94,15 @@ SETTINGS: tuple[RewardSetting, ...] = (
         "paper's -1).",
     ),
     RewardSetting(
+        "wall_energy_weight", 0.0, home="env", kernel=True, beyond_paper=True,
+        added_in_layout=2, ge=0.0, le=10.0,
+        description="Beyond the paper: the kinetic-energy wall penalty of Fuchs et al. (2021, "
+        "Gran Turismo Sport): an episode that ends off track also pays minus this times Vx^2 "
+        "(m^2/s^2) at the step it left, so leaving the track at speed costs more than leaving "
+        "it slowly and the critic has a reason to arrive at a corner slower; 0: the paper's "
+        "-1, bit for bit.",
+    ),
+    RewardSetting(
         "reward_scale", 0.02, home="agent", kernel=False, gt=0.0,
         description="Rewards are multiplied by this before they enter the replay buffer. The "
         "paper's reward is Vx in m/s per step (up to ~80), so Q reaches thousands; scaled, the "
@@ -131,7 +140,8 @@ PARTS: dict[str, str] = {
     "track_pos": "-track_pos_weight Vx |trackPos|: the cost of leaving the reference line.",
     "damage": "-damage_weight times the damage taken in the step.",
     "end": "On a step that ends the episode early, its reward (early_end_reward off track or "
-    "backwards, -slow_penalty slow), which replaces every other part (they read 0).",
+    "backwards, less wall_energy_weight Vx^2 off track; -slow_penalty slow), which replaces "
+    "every other part (they read 0).",
 }
 """The keys of ``info["rewards"]`` and what each pays; they sum to the step's reward."""
 
