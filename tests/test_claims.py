@@ -108,6 +108,10 @@ def test_user_claim_on_the_fixture_by_hand(ctx: Context) -> None:
     # 27.1 beats 27.17 and 27.27; 27.2 beats 27.27; 27.4 none: 3 of 9
     assert comp.stats.prob == pytest.approx(3 / 9)
     assert res.verdict == comp.stats.verdict == "inconclusive"
+    # still open: the pairs its CS would need, priced at both sides' measured 600 s a run
+    need = comp.pairs_to_decide
+    assert comp.pair_cpu_s == 1200.0 and need is not None and need > 3
+    assert comp.cpu_h_to_decide == pytest.approx((need - 3) * 1200.0 / 3600.0)
 
 
 def test_bot_claim_and_finish_claim_on_the_fixture(ctx: Context) -> None:
@@ -115,6 +119,7 @@ def test_bot_claim_and_finish_claim_on_the_fixture(ctx: Context) -> None:
                                                                 "win1"}, b={"bot": "follower"}))
     assert res.comparisons[0].stats.effect == pytest.approx(28.57 - np.mean([27.1, 27.4, 27.2]))
     assert res.verdict == "supported"
+    assert res.comparisons[0].pair_cpu_s == 600.0  # the bot's side costs nothing
     # per1m-rc of part3 laps both unseen tracks cleanly (100 %); per1m-mot's one finished run
     # never laps flowing (50 %); its second run is still running and has no result
     res = evaluate(ctx, claim(kind="finishes_more", a={"part": "part3", "entrant": "per1m-rc"},

@@ -182,3 +182,21 @@ def paired_differences(
         return (xa[0] - xb) if xa.size else xb[:0]
     n = min(xa.size, xb.size)
     return xa[:n] - xb[:n]
+
+
+def pairs_to_decide(seq: Sequence) -> int | None:
+    """The pairs a comparison would need in all for its CS to decide, if the mean stayed as
+    observed and the CS narrowed like 1/sqrt(n) (the model a sequential run allocates seeds
+    by, ``tourney.adaptive``): ``n (gap / |mean - threshold|)^2``, ``gap`` the distance from
+    the mean to the end of the CS that still holds the threshold. A projection, not a
+    promise: the betting CS narrows a little slower than 1/sqrt(n) at first, and the mean
+    moves. Its ``n`` if decided; None without values or with the mean at the threshold."""
+    if seq.verdict in ("above", "below"):
+        return seq.n
+    if seq.n == 0 or not math.isfinite(seq.mean):
+        return None
+    effect = seq.mean - seq.threshold
+    if effect == 0.0:
+        return None
+    gap = seq.mean - seq.low if effect > 0 else seq.high - seq.mean
+    return max(seq.n + 1, math.ceil(seq.n * (gap / abs(effect)) ** 2))

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from formula_tourney.claims import sequential
 from formula_tourney.claims.schema import Claim, Group
 from formula_tourney.report.claims import evidence
 from formula_tourney.report.claims.entrants import Entrant, entrants, first_train_track
@@ -65,11 +66,31 @@ class Comparison:
     b_scores: list[float]
     stats: ClaimStats
     note: str = ""
+    pair_cpu_s: float = math.nan
+    """Measured CPU-seconds of one more pair: the mean job of each side with runs (a bot's
+    side costs nothing); what the projection of a still open comparison is priced at."""
+
+    @property
+    def pairs_to_decide(self) -> int | None:
+        """Pairs its confidence sequence would need in all (``sequential.pairs_to_decide``)."""
+        seq = self.stats.sequence
+        return sequential.pairs_to_decide(seq) if seq is not None else None
+
+    @property
+    def cpu_h_to_decide(self) -> float:
+        """CPU-hours of the pairs it still needs at the measured cost per pair (0 if
+        decided; nan without a projection or a cost)."""
+        need, seq = self.pairs_to_decide, self.stats.sequence
+        if need is None or seq is None:
+            return math.nan
+        return max(0, need - seq.n) * self.pair_cpu_s / 3600.0
 
     def to_json(self) -> dict[str, Any]:
         return {"label": self.label, "track": self.track, "a_runs": self.a_runs,
                 "b_runs": self.b_runs, "a_scores": self.a_scores, "b_scores": self.b_scores,
-                **self.stats.as_dict(), "note": self.note}
+                **self.stats.as_dict(), "note": self.note, "pair_cpu_s": self.pair_cpu_s,
+                "pairs_to_decide": self.pairs_to_decide,
+                "cpu_h_to_decide": self.cpu_h_to_decide}
 
 
 @dataclass
@@ -356,7 +377,19 @@ def _compare(ctx: Context, claim: Claim, label: str, a_jobs: pd.DataFrame | None
     if missing:
         where = f" on {track}" if track else ""
         notes.insert(0, " and ".join(missing) + f": no runs with a result{where}")
-    return Comparison(label, track, a_ids, b_ids, a_vals, b_vals, st, "; ".join(notes))
+    pair_s = sum(_mean_cpu_s(ctx, ids) for ids, fixed in ((a_ids, a_fixed), (b_ids, b_fixed))
+                 if not fixed)
+    return Comparison(label, track, a_ids, b_ids, a_vals, b_vals, st, "; ".join(notes),
+                      pair_cpu_s=pair_s)
+
+
+def _mean_cpu_s(ctx: Context, job_ids: list[str]) -> float:
+    """Mean measured seconds of these jobs (the index's ``wall_s``: one-thread workers, so
+    their CPU-seconds); nan where none has one."""
+    if not job_ids or "wall_s" not in ctx.jobs.columns:
+        return math.nan
+    rows = ctx.jobs.loc[ctx.jobs["job_id"].isin(job_ids), "wall_s"]
+    return float(pd.to_numeric(rows, errors="coerce").mean())
 
 
 def _split(ctx: Context, claim: Claim, group: Group, jobs: pd.DataFrame | None

@@ -14,11 +14,12 @@ from formula_tourney.report.table_model import DASH, ReportTable
 
 GROUP = "claims"
 METRICS = ["verdict", "effect", "95% CI", "P(A better)", "P 95% CI", "runs A/B", "seeds",
-           "sequential", "95% CS"]
+           "sequential", "95% CS", "CS pairs", "CPU-h more"]
 """Columns: the verdict, A's advantage in the claim's unit with its CI, the probability that a
 run of A beats a run of B with its CI, the runs compared, the seeds per group a clear answer
-needs at the observed spread, and the anytime-valid verdict with its confidence sequence (the
-one a sequential run decides on)."""
+needs at the observed spread, the anytime-valid verdict with its confidence sequence (the
+one a sequential run decides on), the pairs that sequence would need to decide at the
+observed mean and the CPU-hours of those still to run."""
 
 
 def _num(value: float, digits: int = 2, sign: bool = True) -> str:
@@ -49,7 +50,10 @@ def claims_table(results: list[ClaimResult], origin: str) -> ReportTable:
             "inconclusive: it does not at this sample size. sequential, 95% CS: the "
             "anytime-valid confidence sequence of the paired differences (claims.sequential: "
             "valid however often it is read, so the verdict of a run that adds seeds until it "
-            "decides; a miss counts as the worst bounded value) and its verdict."
+            "decides; a miss counts as the worst bounded value) and its verdict. CS pairs: the "
+            "pairs it would need in all to decide if the mean stayed as observed and it "
+            "narrowed like 1/sqrt(n) (a projection); CPU-h more: those not yet run, at the "
+            "measured CPU-seconds of a run of each side."
         ),
         groups=[GROUP] if results else [], metrics={GROUP: list(METRICS)} if results else {},
     )
@@ -81,6 +85,9 @@ def claims_table(results: list[ClaimResult], origin: str) -> ReportTable:
                 "sequential": st.sequential,
                 "95% CS": (_ci(st.sequence.low, st.sequence.high, digits)
                            if st.sequence is not None and st.sequence.n else DASH),
+                "CS pairs": (str(comp.pairs_to_decide) if comp.pairs_to_decide is not None
+                             else DASH),
+                "CPU-h more": _num(comp.cpu_h_to_decide, 2, sign=False),
             }
             values = {"effect": st.effect, "95% CI": math.nan, "P(A better)": st.prob}
             for metric in METRICS:
