@@ -6,6 +6,7 @@ seeds and verdicts as a run never interrupted."""
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import sqlite3
@@ -27,7 +28,7 @@ from formula_tourney.tourney.adaptive import (
     Look,
     allocate,
 )
-from formula_tourney.tourney.api import run_tournament
+from formula_tourney.tourney.api import plan_tournament, run_tournament
 from formula_tourney.tourney.estimate.calibrate import WorkerStart, calibrate
 from formula_tourney.tourney.estimate.model import Estimate, JobCost, PartCost
 from formula_tourney.tourney.runner import FAULTS_ENV
@@ -349,7 +350,7 @@ def test_kill_9_in_the_middle_of_a_wave_resumes_to_the_same_seeds_and_verdicts(
 # ------------------------------------------------------------------------- cost up front
 
 
-def _priced(budget_cpu_h: float | None) -> dict:
+def _priced(budget_cpu_h: float | None, cluster_cpus: int | None = None) -> dict:
     """A 2-part estimate at min_seeds 2 (100 CPU-s per job, no contention, no worker start)."""
     parts = [
         PartCost("p1", 0, None, [JobCost(1e4, 1e4, 4, 100.0, 0.0, 300.0)] * 4, baselines_s=[10.0]),
@@ -359,7 +360,7 @@ def _priced(budget_cpu_h: float | None) -> dict:
     return Estimate(
         parts,
         workers=1,
-        cluster_cpus=None,
+        cluster_cpus=cluster_cpus,
         worker=WorkerStart(0.0, 0.0, 0.0),
         contention=1.0,
         calibration_s=1.0,
@@ -382,6 +383,15 @@ def test_the_adaptive_estimate_states_its_floor_expected_and_worst_case() -> Non
     assert capped["expected_cpu_s"] == pytest.approx(floor + 0.5 * (1000.0 - floor))
     below = _priced(100.0 / 3600.0)["adaptive"]  # the floor always runs
     assert below["worst_cpu_s"] == pytest.approx(floor) == pytest.approx(below["expected_cpu_s"])
+    # on a 4-CPU cluster, waves of 2 runs side by side: the floor's wall, then one mean run
+    # (4 x 100 + 2 x 50) / 6 s per wave of 2 x that run's CPU
+    est = _priced(None, cluster_cpus=4)
+    ad, run_s = est["adaptive"], 500.0 / 6
+    waves = math.ceil((ad["worst_cpu_s"] - floor) / (2 * run_s))
+    assert ad["worst_cluster_wall_s"] == pytest.approx(est["total"]["cluster_wall_s"]
+                                                       + waves * run_s)
+    assert ad["expected_cluster_wall_s"] < ad["worst_cluster_wall_s"]
+    assert "expected_cluster_wall_s" not in _priced(None)["adaptive"]
 
 
 def test_a_too_short_calibration_is_refused_and_a_censored_one_widens_its_range(
@@ -411,3 +421,19 @@ def test_a_too_short_calibration_is_refused_and_a_censored_one_widens_its_range(
     )
     measured = calibrate(long_episodes, seconds=0.5)  # far fewer than 3 x 50k steps driven
     assert measured.episode_steps_se >= (50_000 - measured.episode_steps_mean) / 1.96 - 1e-6
+
+
+def test_wave_seeds_from_the_command_line(tmp_path: Path) -> None:
+    """--wave-seeds replaces the design's runs per wave (a cluster's CPUs); it needs a
+    sequential run and a count in range, one line each."""
+    path = _long_short(tmp_path, "min_seeds = 2\nmax_seeds = 6\nwave_seeds = 2")
+    planner, _, _ = plan_tournament(path, tmp_path / "res", wave_seeds=64)
+    assert planner.spec.adaptive is not None and planner.spec.adaptive.wave_seeds == 64
+    with pytest.raises(UserInputError, match=r"^--wave-seeds must be 1-1000, got 0$"):
+        plan_tournament(path, tmp_path / "res", wave_seeds=0)
+    fixed = tmp_path / "fixed.toml"
+    design = "[adaptive]\nmin_seeds = 2\nmax_seeds = 6\nwave_seeds = 2\n"
+    assert design in path.read_text()
+    fixed.write_text(path.read_text().replace(design, ""), encoding="utf-8")
+    with pytest.raises(UserInputError, match=r"--wave-seeds needs a sequential run"):
+        plan_tournament(fixed, tmp_path / "res", wave_seeds=4)

@@ -48,7 +48,10 @@ def render_estimate(console: Console, est: dict[str, Any]) -> None:
                       f"{ad['wave_seeds']}{budget}): the total above is its floor; expected "
                       f"{hours(ad['expected_cpu_s'])} CPU ({hours(ad['expected_wall_s'])} wall), "
                       f"worst case {hours(ad['worst_cpu_s'])} CPU ({hours(ad['worst_wall_s'])} "
-                      "wall)", markup=False)
+                      "wall)" + (f"; on the cluster, waves of {ad['wave_seeds']}: expected "
+                                 f"{hours(ad['expected_cluster_wall_s'])}, worst "
+                                 f"{hours(ad['worst_cluster_wall_s'])} wall"
+                                 if "expected_cluster_wall_s" in ad else ""), markup=False)
     worker = est["worker"]
     console.print(f"  {est['model']}; measured in {est['calibration_s']:.0f} s: a worker "
                   f"starts in {worker['start_s']:.1f} s, its first job costs "

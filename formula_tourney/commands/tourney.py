@@ -101,6 +101,10 @@ def register(app: typer.Typer) -> None:
             "max_seeds is reached (the file's adaptive table, or its defaults; "
             "docs/claims.md).",
         ),
+        wave_seeds: int | None = typer.Option(
+            None, "--wave-seeds", help="Sequential run: new runs per wave instead of the "
+            "adaptive table's wave_seeds (on a cluster: its CPUs, so a wave runs side by side)."
+        ),
         job_timeout_s: float | None = typer.Option(
             None, "--job-timeout-s",
             help="Stop a job that runs longer than this and fail it ('timed out after N s'); "
@@ -143,7 +147,7 @@ def register(app: typer.Typer) -> None:
                 results_dir=results, dry_run=dry_run, retry_failed=retry_failed,
                 rebuild_index=rebuild_index, progress=None if dry_run else ProgressView(),
                 estimate=estimate, calibrate_s=calibrate_s, cluster_cpus=cluster_cpus,
-                report=message, budget_cpu_h=budget_cpu_h, judge=judge,
+                report=message, budget_cpu_h=budget_cpu_h, wave_seeds=wave_seeds, judge=judge,
                 job_timeout_s=job_timeout_s, slurm=slurm,
             )
         except KeyboardInterrupt:

@@ -36,6 +36,7 @@ DEFAULT_RESULTS = Path("results")
 def plan_tournament(
     path: str | Path, results_dir: str | Path | None = None,
     budget_cpu_h: float | None = None,
+    wave_seeds: int | None = None,
 ) -> tuple[Planner, list[PlannedPart], Path]:
     """Load and validate a tournament file and plan it; writes nothing.
 
@@ -53,6 +54,14 @@ def plan_tournament(
         design = spec.adaptive or Adaptive()
         spec = spec.model_copy(update={"adaptive": design.model_copy(
             update={"budget_cpu_h": float(budget_cpu_h)})})
+    if wave_seeds is not None:
+        if spec.adaptive is None:
+            raise UserInputError("--wave-seeds needs a sequential run: an [adaptive] table in "
+                                 f"{path} or --budget-cpu-h")
+        if not 1 <= wave_seeds <= 1000:
+            raise UserInputError(f"--wave-seeds must be 1-1000, got {wave_seeds}")
+        spec = spec.model_copy(update={"adaptive": spec.adaptive.model_copy(
+            update={"wave_seeds": int(wave_seeds)})})
     root = Path(results_dir if results_dir is not None else DEFAULT_RESULTS) / spec.name
     planner = Planner(spec, path, text, root.resolve())
     planner.validate()
@@ -76,6 +85,7 @@ def run_tournament(
     cluster_cpus: int | None = None,
     report: Callable[[str], None] | None = None,
     budget_cpu_h: float | None = None,
+    wave_seeds: int | None = None,
     judge: Judge | None = None,
     job_timeout_s: float | None = None,
     slurm: SlurmSettings | None = None,
@@ -91,7 +101,8 @@ def run_tournament(
     cost estimate (``tourney.estimate``; ``cluster_cpus``: also for a Ray cluster that size):
     to the dry run's result, or, for a run, to ``estimate.json`` in the results folder when the
     tournament has none yet (a resume keeps the first). ``report`` hears its progress lines.
-    A sequential run (``[adaptive]`` or ``budget_cpu_h``) reads its claims with ``judge``
+    A sequential run (``[adaptive]`` or ``budget_cpu_h``; ``wave_seeds`` replaces its
+    design's runs per wave, e.g. a cluster's CPUs) reads its claims with ``judge``
     after every wave (``report.claims.judge.judge``; the tournament layer reads no report).
     ``job_timeout_s`` stops and fails a job that runs longer; ``slurm`` holds the settings of
     ``executor="slurm"`` / ``"slurm-local"`` (``tourney.slurm_executor``).
@@ -107,7 +118,7 @@ def run_tournament(
         raise UserInputError(f"--cluster-cpus must be >= 1, got {cluster_cpus}")
     if workers is not None and executor in SLURM_KINDS:
         raise UserInputError("--workers is not for --executor slurm; use --slurm-max-parallel")
-    planner, planned, root = plan_tournament(path, results_dir, budget_cpu_h)
+    planner, planned, root = plan_tournament(path, results_dir, budget_cpu_h, wave_seeds)
     if planner.spec.adaptive is not None and judge is None and not dry_run:
         raise ValueError("a sequential run ([adaptive]) needs a judge to read its claims")
     if executor in SLURM_KINDS:  # the estimate's wall time: the jobs Slurm runs at once

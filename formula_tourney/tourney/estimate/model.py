@@ -302,14 +302,14 @@ class Estimate:
                      "after learning starts; tests at the untrained actor's length; cpu_s_max: "
                      "every episode and test to its step limit",
         }  # fmt: skip
-        if self.adaptive is not None:
-            out["adaptive"] = adaptive_cost(self.parts, rows, self.adaptive, self.contention,
-                                            out["total"])
         if self.cluster_cpus:
             out["total"]["cluster_cpus"] = self.cluster_cpus
             out["total"]["cluster_wall_s"] = simulate_wall(
                 self.parts, self.cluster_cpus, start_s=RAY_INIT_S,
                 per_worker_s=per_worker)
+        if self.adaptive is not None:
+            out["adaptive"] = adaptive_cost(self.parts, rows, self.adaptive, self.contention,
+                                            out["total"])
         return out
 
 
@@ -350,7 +350,18 @@ def adaptive_cost(parts: list[PartCost], rows: list[dict[str, Any]], design: Ada
     expected = floor + 0.5 * (min(unbudgeted, max(budget_s, floor)) - floor)
     wall = float(total["wall_s"])
     per_cpu = wall / floor if floor > 0 else 0.0
+    cluster: dict[str, float] = {}
+    train_jobs = [j for part in parts for j in part.jobs]
+    if total.get("cluster_cpus") and train_jobs:
+        # on a cluster each wave's runs go side by side (up to its CPUs), and a wave takes
+        # about one run: the floor's wall, then one run per wave of the added CPU
+        run_s = sum(j.cpu_s for j in train_jobs) / len(train_jobs)
+        side = min(design.wave_seeds, int(total["cluster_cpus"]))
+        for key, cpu in (("expected", expected), ("worst", worst)):
+            waves = math.ceil(max(cpu - floor, 0.0) / (side * run_s))
+            cluster[f"{key}_cluster_wall_s"] = float(total["cluster_wall_s"]) + waves * run_s
     return {
+        **cluster,
         "min_seeds": design.min_seeds, "max_seeds": design.max_seeds,
         "wave_seeds": design.wave_seeds, "budget_cpu_h": design.budget_cpu_h,
         "floor_cpu_s": floor, "floor_cpu_h": floor / 3600.0,
