@@ -354,3 +354,16 @@ def test_paper_2_rc_reads_racing_line_runs_with_lac(ctx: Context) -> None:
     lac = res.comparisons[2]
     assert lac.a_runs == ["part3/per1m-rc-lac/seed-0", "part3/per1m-rc-lac/seed-1"]
     assert lac.stats.verdict == "supported"  # 65 + 2 e^-2 (+0.1) against 68.11
+
+
+def test_a_per_track_claim_compares_only_runs_that_drive_the_track(ctx: Context) -> None:
+    """win4 against per1m on each of win4's train tracks: on technical, part1's oval-trained
+    per1m (never tested on technical) is no comparison, where part3's technical-trained per1m
+    tested on the oval is one on the oval; every comparison has runs on both sides."""
+    res = evaluate(ctx, claim(kind="faster", per_track=True, a={"variant": "win4"},
+                              b={"variant": "per1m"}))
+    labels = {(c.track, c.label.split(" vs ")[1]) for c in res.comparisons}
+    assert ("technical", "per1m MOT on oval") not in labels
+    assert ("oval", "per1m RC on technical") in labels  # tested on the oval (part3)
+    assert all(c.a_runs and c.b_runs for c in res.comparisons)
+    assert res.verdict == "contradicted"

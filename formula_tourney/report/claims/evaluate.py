@@ -452,6 +452,8 @@ def _slices(claim: Claim, a_all: pd.DataFrame | None, b_all: pd.DataFrame | None
             sub_b = b_all
             if a_all is None and b_all is not None:
                 sub_b = b_all.loc[[first_train_track(j) == track for _, j in b_all.iterrows()]]
+            elif b_all is not None:  # B's runs with a lap on this track: trained or tested here
+                sub_b = b_all.loc[[_drives(j, track) for _, j in b_all.iterrows()]]
             out.append((f"on {track}" if named else "", sub_a, sub_b, track))
         return out
     if claim.split_b != "none" and b_all is not None:
@@ -459,6 +461,13 @@ def _slices(claim: Claim, a_all: pd.DataFrame | None, b_all: pd.DataFrame | None
         return [(f"vs {claim.split_b} {value}" if named else "", a_all, sub_b, fixed_track)
                 for value, sub_b in b_all.groupby(claim.split_b, sort=False)]
     return [("", a_all, b_all, fixed_track)]
+
+
+def _drives(job: pd.Series, track: str) -> bool:
+    """Whether a run can have a lap on ``track``: trained there, or tested there (or planned
+    to be). A per-track claim compares on each track only the runs of B that drive it, so a
+    run of B trained and tested elsewhere is not a comparison without data on that track."""
+    return first_train_track(job) == track or track in list(job.get("tested_tracks") or [])
 
 
 def evaluate(ctx: Context, claim: Claim) -> ClaimResult:
