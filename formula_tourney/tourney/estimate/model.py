@@ -181,10 +181,9 @@ def job_cost(spec: RunSpec, rates: Rates, fixed_s: float | None = None) -> JobCo
     cpu_max = (fixed + full * t_step + updates_for(full) * t_upd
                + tests * test_max_s + rounds * per_round)  # fmt: skip
     if budgeted:  # its clock's budget, one more episode and its last test round at their limits
-        assert sch.budget_cpu_s is not None
         tail = (sch.max_steps * (t_step + ups * t_upd)
                 + sch.test_starts * len(spec.test_tracks) * test_max_s + per_round)
-        cpu_max = min(cpu_max, fixed + float(sch.budget_cpu_s) + tail)
+        cpu_max = min(cpu_max, fixed + clock + tail)
         var = (0.5 * length * (t_step + ups * t_upd)) ** 2  # where in an episode it stops
     return JobCost(steps, updates_for(steps), tests, cpu, math.sqrt(var), cpu_max,
                    clock_s=clock)
