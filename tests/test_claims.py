@@ -120,6 +120,10 @@ def test_bot_claim_and_finish_claim_on_the_fixture(ctx: Context) -> None:
     assert res.comparisons[0].stats.effect == pytest.approx(28.57 - np.mean([27.1, 27.4, 27.2]))
     assert res.verdict == "supported"
     assert res.comparisons[0].pair_cpu_s == 600.0  # the bot's side costs nothing
+    # its CS reads the differences' span against one fixed lap: no run beats the bot by more
+    # than the bot's distance from the oval's limit (28.57 - 25.80 s)
+    seq = res.comparisons[0].stats.sequence
+    assert seq is not None and seq.high <= 28.57 - 25.80 + 1e-9
     # per1m-rc of part3 laps both unseen tracks cleanly (100 %); per1m-mot's one finished run
     # never laps flowing (50 %); its second run is still running and has no result
     res = evaluate(ctx, claim(kind="finishes_more", a={"part": "part3", "entrant": "per1m-rc"},
