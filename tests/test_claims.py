@@ -20,6 +20,7 @@ from formula_tourney.report.claims import profiles
 from formula_tourney.report.claims.evaluate import PAPER_PRESET, evaluate, preset_of
 from formula_tourney.report.claims.evidence import compare_scores, overall
 from formula_tourney.report.claims.sources import load_claims_file, resolve_claims
+from formula_tourney.report.claims.table import claims_table
 from formula_tourney.report.load import load_tournament
 from formula_tourney.report.paper_tables import Context, table2
 from formula_tourney.results.folder import JobFolder
@@ -92,6 +93,23 @@ def test_no_runs_is_no_data_and_overall_rules() -> None:
     assert overall(["supported", "inconclusive"]) == "inconclusive"
     assert overall(["supported", "contradicted"]) == "contradicted"
     assert overall(["no data", "no data"]) == "no data"
+
+
+def test_a_claim_decided_on_wins_reads_who_wins_each_pair(ctx: Context) -> None:
+    """win1's three laps (27.1, 27.4, 27.2 s) all beat the follower's 28.57 s: three wins,
+    too few to decide (a consistent effect needs seven), shown as P(A better)."""
+    res = evaluate(ctx, claim(kind="faster", track="oval", decide_on="wins",
+                              a={"part": "part1", "entrant": "win1"}, b={"bot": "follower"}))
+    seq = res.comparisons[0].stats.sequence
+    assert seq is not None and seq.n == 3 and seq.mean == 1.0 and seq.verdict == "open"
+    assert res.sequential == "inconclusive" and res.verdict == "supported"  # fixed-sample CI
+    row = claims_table([res], "test").records[0]
+    assert row["decide_on"] == "wins"
+    text = claims_table([res], "test").rows[0]["text"][("claims", "95% CS")]
+    lo, hi = ((seq.low + 1) / 2, (seq.high + 1) / 2)
+    assert text == f"P [{lo:.2f}, {hi:.2f}]" and hi == 1.0 and lo < 0.5
+    # the paper's claims are all decided on wins
+    assert {c.decide_on for c in shipped_set("paper").resolved()} == {"wins"}
 
 
 def test_user_claim_on_the_fixture_by_hand(ctx: Context) -> None:

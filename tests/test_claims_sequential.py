@@ -13,6 +13,7 @@ from formula_tourney.claims.sequential import (
     Sequence,
     confidence_sequence,
     paired_differences,
+    paired_wins,
     pairs_to_decide,
     rejected,
 )
@@ -155,3 +156,39 @@ def test_pairs_to_decide_projects_the_cs_at_its_observed_mean() -> None:
     decided_at = next(n for n in range(5, 201)
                       if confidence_sequence(values[:n], BOUND).verdict == "above")
     assert decided_at <= 2 * need
+
+
+def test_paired_wins_count_a_miss_as_losing_to_any_lap_and_two_misses_as_a_tie() -> None:
+    inf = math.inf
+    assert paired_wins([-70.0, -inf, -inf, -72.0], [-71.0, -80.0, -inf, -72.0]).tolist() == [
+        1.0, -1.0, 0.0, 0.0]
+    assert paired_wins([-70.0, -inf, -73.0], [-71.5], b_fixed=True).tolist() == [1.0, -1.0, -1.0]
+    assert paired_wins([-71.5], [-70.0, -inf], a_fixed=True).tolist() == [-1.0, 1.0]
+    assert paired_wins([1.0, 2.0, 3.0], [0.0]).tolist() == [1.0]  # as many as the shorter side
+
+
+def _wins_null(seed: int) -> np.ndarray:
+    """RUNS sequential runs of MAX_SEEDS pairs from two equal groups whose runs miss a third of
+    the time (two misses tie): who wins each pair, under the null of no difference."""
+    rng = np.random.default_rng(seed)
+    laps = rng.normal(72.0, 2.0, (2, RUNS, MAX_SEEDS))
+    laps[rng.random(laps.shape) < 1 / 3] = math.inf
+    return paired_wins(-laps[0].ravel(), -laps[1].ravel()).reshape(RUNS, MAX_SEEDS)
+
+
+def test_deciding_on_wins_keeps_its_error_under_the_null_and_the_naive_reading_inflates() -> None:
+    w = _wins_null(seed=17)
+    gone = rejected((w + 1.0) / 2.0, 0.5)[..., 0]
+    assert gone[:, LOOKS - 1].any(axis=1).mean() <= 0.05
+    assert _naive_decides(w).mean() > 0.15
+
+
+def test_wins_decide_a_consistent_small_effect_the_bounded_mean_cannot() -> None:
+    # LAC 1.5-4.5 s faster in every pair on a track whose limit (and so the mean's bound) is
+    # 66 s: seven pairs decide on wins; the mean's CS is still open at twenty
+    rng = np.random.default_rng(23)
+    gains = rng.uniform(1.5, 4.5, 20)
+    wins = [confidence_sequence(paired_wins(gains[:n], np.zeros(n)), 1.0) for n in (6, 7)]
+    assert [w.verdict for w in wins] == ["open", "above"]
+    assert (wins[1].low + 1.0) / 2.0 > 0.5  # P(A better) above one half
+    assert confidence_sequence(gains, 66.0).verdict == "open"

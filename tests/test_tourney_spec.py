@@ -132,7 +132,7 @@ def test_shipped_tournaments_validate() -> None:
     spec, _ = load_spec(root / "replication.toml")
     assert spec.adaptive is not None and spec.adaptive.budget_cpu_h == 4  # sequential
     budgets = {p.name: spec.settings(p)["budget_cpu_s"] for p in spec.parts}
-    assert [budgets[p] for p in ("r1-oval", "r2-technical", "r3-lac-flowing")] == [150, 240, 240]
+    assert [budgets[p] for p in ("r1-oval", "r2-technical-rc", "r3-lac-flowing")] == [150, 200, 200]
     assert {spec.settings(p)["preset"] for p in spec.parts} == {"best"}  # from scratch
     assert all(spec.settings(p)["demos"] is None for p in spec.parts)
     spec, _ = load_spec(root / "study1.toml")

@@ -33,6 +33,9 @@ Kind = Literal["faster", "finishes_more", "higher_reward", "learns_faster"]
 Milestone = Literal["first_clean_lap", "beat_centre_bot", "beat_mincurv_bot"]
 """What a learns_faster claim times (``results.competence.MILESTONES``): the first clean lap,
 beating the follower on the centre line, beating it on the min-curvature line."""
+DecideOn = Literal["mean", "wins"]
+"""What a claim's anytime-valid verdict reads (``claims.sequential``): the mean of the paired
+differences, or the pairs A wins (the probability of improvement against one half)."""
 SplitBy = Literal["none", "family", "variant", "entrant"]
 PairKey = Literal["part", "variant", "reference", "lac", "train_track"]
 PoolKey = Literal["variant", "line", "train_track", "setup"]
@@ -148,6 +151,12 @@ class Claim(_Strict):
         "higher_reward: the largest difference between a run of A and one of B (default: the "
         "range the scores span). Shares lie in [0, 100] and CPU-s to a milestone in [0, "
         "budget] by themselves.")
+    decide_on: DecideOn = Field(
+        "mean", description="What the anytime-valid (sequential) verdict reads: mean (the "
+        "mean of the paired differences A - B, bounded as `bound` says) or wins (each pair "
+        "+1 where A's run beats B's, -1 where it loses, 0 on a tie: supported when a run of A "
+        "beats a run of B more often than not, the sign test; no bound needed, a miss loses "
+        "to any result). The fixed-sample verdict reads the mean either way.")
     a: Group = Field(description="The group claimed to be better.")
     b: Group = Field(description="The group it is compared with.")
     track: str = Field("own", description="faster: the track lap times are read on; 'own': each "

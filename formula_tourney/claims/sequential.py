@@ -31,6 +31,15 @@ with a bot, whose lap is one fixed value) are mapped to ``x = (d - low) / (high 
 bound comes from the data model (``report.claims.evidence``: a lap time lies between the
 track's reference limit and the longest lap a test can time, a miss counts as that longest
 lap; a share of tracks lies in [0, 100]; a CPU time to a milestone in [0, budget]).
+
+A claim may instead be decided on its *wins* (``decide_on = "wins"``, :func:`paired_wins`):
+each pair counts +1 where A's run beats B's, -1 where it loses and 0 on a tie (two runs
+without a result tie). Their mean is P(A beats B) - P(B beats A), so the CS excludes 0 exactly
+when it excludes a probability of improvement of one half: the sign test, made anytime-valid by
+the same betting sequence. It needs no bound from the data model, counts a miss as worse
+than any lap (the "miss counts as infinite" of a median) and reads a consistent effect from 7
+pairs whatever its size in seconds, where the mean's CS must first outgrow a bound of one
+reference limit (a lap that never comes counts as twice the limit).
 """
 
 from __future__ import annotations
@@ -182,6 +191,28 @@ def paired_differences(
         return (xa[0] - xb) if xa.size else xb[:0]
     n = min(xa.size, xb.size)
     return xa[:n] - xb[:n]
+
+
+def paired_wins(
+    a: np.ndarray | list[float],
+    b: np.ndarray | list[float],
+    a_fixed: bool = False,
+    b_fixed: bool = False,
+) -> np.ndarray:
+    """Who wins each pair of :func:`paired_differences` (scores, higher is better; -inf: a run
+    without a result): +1 where A's score is higher, -1 where B's is, 0 on a tie, two misses
+    included. A difference of two misses is undefined (nan), a comparison is not, which is why
+    this compares instead of taking the sign of the differences."""
+    xa, xb = np.asarray(a, dtype=float).ravel(), np.asarray(b, dtype=float).ravel()
+    if a_fixed and b_fixed:
+        raise ValueError("a comparison needs runs on at least one side")
+    if b_fixed:
+        xb = np.full(xa.shape, xb[0]) if xb.size else xb
+    elif a_fixed:
+        xa = np.full(xb.shape, xa[0]) if xa.size else xa
+    n = min(xa.size, xb.size)
+    xa, xb = xa[:n], xb[:n]
+    return (xa > xb).astype(float) - (xa < xb).astype(float)
 
 
 def pairs_to_decide(seq: Sequence) -> int | None:

@@ -114,7 +114,8 @@ class ClaimResult:
     def to_json(self) -> dict[str, Any]:
         c = self.claim
         return {"id": c.id, "statement": c.statement, "source": c.source, "kind": c.kind,
-                "unit": self.unit, "a": c.a.describe(), "b": c.b.describe(),
+                "unit": self.unit, "decide_on": c.decide_on, "a": c.a.describe(),
+                "b": c.b.describe(),
                 "verdict": self.verdict, "sequential": self.sequential, "notes": self.notes,
                 "comparisons": [x.to_json() for x in self.comparisons]}
 
@@ -371,7 +372,8 @@ def _compare(ctx: Context, claim: Claim, label: str, a_jobs: pd.DataFrame | None
             notes.append(f"B: {dropped} {REPEATED}")
     scale = scale_of(ctx, claim, [*a_ids, *b_ids], [*a_vals, *b_vals], track)
     seq = evidence.sequence_of(seed_ordered(ctx, a_ids, a_vals)[1],
-                               seed_ordered(ctx, b_ids, b_vals)[1], a_fixed, b_fixed, scale)
+                               seed_ordered(ctx, b_ids, b_vals)[1], a_fixed, b_fixed, scale,
+                               claim.decide_on)
     st = evidence.compare_scores(a_vals, b_vals, a_fixed, b_fixed, sequence=seq)
     missing = [name for name, ids in (("A", a_ids), ("B", b_ids)) if not ids]
     if missing:

@@ -24,7 +24,9 @@ an anytime-valid *sequential* verdict (``claims.sequential``): the hedged capita
 sequence of the paired differences A - B (the i-th run of A by seed against the i-th of B; a
 bot subtracted from every run), with a miss counted as the worst bounded value (``Scale``:
 a run without a clean lap as the longest lap a test can time, a missed milestone as the CPU
-budget). It is supported / contradicted when the sequence lies above / below 0.
+budget). It is supported / contradicted when the sequence lies above / below 0. A claim with
+``decide_on = "wins"`` reads the sequence of who wins each pair instead (+1 / 0 / -1: the sign
+test, against a probability of improvement of one half), which needs no bound.
 """
 
 from __future__ import annotations
@@ -106,12 +108,18 @@ SEQUENTIAL = {"above": SUPPORTED, "below": CONTRADICTED, "open": INCONCLUSIVE, "
 
 
 def sequence_of(a: Sequence[float], b: Sequence[float], a_fixed: bool, b_fixed: bool,
-                scale: Scale) -> sequential.Sequence | None:
+                scale: Scale, decide_on: str = "mean") -> sequential.Sequence | None:
     """The confidence sequence of A - B (scores in seed order; -inf counts as the miss, nan
-    is no value); None without runs on a side or without a finite bound. Against a fixed side
-    the differences lie in a span one bound wide (``sequential.confidence_sequence``)."""
+    is no value); None without runs on a side or, for the mean, without a finite bound.
+    Against a fixed side the differences lie in a span one bound wide
+    (``sequential.confidence_sequence``). ``decide_on = "wins"``: the sequence of who wins
+    each pair (``sequential.paired_wins``, values in [-1, 1]), which needs no scale."""
     a, b = _arr(a), _arr(b)
-    if a.size == 0 or b.size == 0 or not (math.isfinite(scale.bound) and scale.bound > 0):
+    if a.size == 0 or b.size == 0:
+        return None
+    if decide_on == "wins":
+        return sequential.confidence_sequence(sequential.paired_wins(a, b, a_fixed, b_fixed), 1.0)
+    if not (math.isfinite(scale.bound) and scale.bound > 0):
         return None
     fa = np.clip(np.where(np.isneginf(a), scale.miss, a), scale.miss, scale.best)
     fb = np.clip(np.where(np.isneginf(b), scale.miss, b), scale.miss, scale.best)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from formula_tourney.report.claims.evaluate import ClaimResult
+from formula_tourney.report.claims.evaluate import ClaimResult, Comparison
 from formula_tourney.report.table_model import DASH, ReportTable
 
 GROUP = "claims"
@@ -34,6 +34,18 @@ def _ci(low: float, high: float, digits: int = 2) -> str:
     return f"[{low:+.{digits}f}, {high:+.{digits}f}]"
 
 
+def _cs(res: ClaimResult, comp: Comparison, digits: int) -> str:
+    """The confidence sequence in the claim's unit; a claim decided on wins shows it as the
+    probability that a run of A beats one of B (the mean of the +1 / 0 / -1 wins is
+    2 P - 1), beside the P(A better) column it makes anytime-valid."""
+    seq = comp.stats.sequence
+    if seq is None or not seq.n:
+        return DASH
+    if res.claim.decide_on == "wins":
+        return "P " + _ci((seq.low + 1.0) / 2.0, (seq.high + 1.0) / 2.0).replace("+", "")
+    return _ci(seq.low, seq.high, digits)
+
+
 def claims_table(results: list[ClaimResult], origin: str) -> ReportTable:
     """The claims section; ``origin`` says where the claims were declared."""
     table = ReportTable(
@@ -50,7 +62,9 @@ def claims_table(results: list[ClaimResult], origin: str) -> ReportTable:
             "inconclusive: it does not at this sample size. sequential, 95% CS: the "
             "anytime-valid confidence sequence of the paired differences (claims.sequential: "
             "valid however often it is read, so the verdict of a run that adds seeds until it "
-            "decides; a miss counts as the worst bounded value) and its verdict. CS pairs: the "
+            "decides; a miss counts as the worst bounded value) and its verdict; for a claim "
+            "decided on wins, the sequence of who wins each pair, shown as P(A better) (P ...: "
+            "decided against 1/2; a miss loses to any result). CS pairs: the "
             "pairs it would need in all to decide if the mean stayed as observed and it "
             "narrowed like 1/sqrt(n) (a projection); CPU-h more: those not yet run, at the "
             "measured CPU-seconds of a run of each side."
@@ -83,8 +97,7 @@ def claims_table(results: list[ClaimResult], origin: str) -> ReportTable:
                 "runs A/B": f"{st.n_a}/{st.n_b}",
                 "seeds": str(st.seeds_needed) if st.seeds_needed is not None else DASH,
                 "sequential": st.sequential,
-                "95% CS": (_ci(st.sequence.low, st.sequence.high, digits)
-                           if st.sequence is not None and st.sequence.n else DASH),
+                "95% CS": _cs(res, comp, digits),
                 "CS pairs": (str(comp.pairs_to_decide) if comp.pairs_to_decide is not None
                              else DASH),
                 "CPU-h more": _num(comp.cpu_h_to_decide, 2, sign=False),
