@@ -32,6 +32,7 @@ import hashlib
 import importlib
 import os
 import shutil
+import signal
 import subprocess
 import time
 from dataclasses import dataclass
@@ -411,6 +412,10 @@ class SlurmExecutor:
     def _cancel(self, held: _Held) -> None:
         with contextlib.suppress(Exception):
             held.handle.cancel(check=False)
+        if self.cluster == "local":
+            process = getattr(held.handle, "_process", None)
+            if process is not None:
+                _end_process_tree(process.pid)
 
     def shutdown(self) -> None:
         """Cancel what is still queued or running: an interrupted job has no summary in its
@@ -420,6 +425,60 @@ class SlurmExecutor:
         self._held.clear()
         self._buffer.clear()
         self._slots = [None] * self.workers
+
+
+LOCAL_CANCEL_GRACE_S = 5.0
+"""How long a cancelled local job's tasks have after SIGTERM (a training job writes its resume
+file) before what is left of the job, its controller included, gets SIGKILL."""
+
+
+def _descendants(pid: int) -> list[int]:
+    """The processes below ``pid``, read from /proc (none where there is no /proc)."""
+    children: dict[int, list[int]] = {}
+    proc = Path("/proc")
+    if not proc.is_dir():
+        return []
+    for entry in proc.iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        ppid = int(stat.rpartition(")")[2].split()[1])
+        children.setdefault(ppid, []).append(int(entry.name))
+    out, todo = [], [pid]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            out.append(child)
+            todo.append(child)
+    return out
+
+
+def _end_process_tree(pid: int) -> None:
+    """End a local job's controller and everything below it. submitit cancels a local job
+    with SIGINT to its controller, which a process started with SIGINT ignored (a background
+    shell, CI) never sees: the controller then outlives the cancel and requeues the job at its
+    own time limit. So the tasks get SIGTERM, and after a grace period the rest gets SIGKILL."""
+    tasks = _descendants(pid)
+    for child in tasks:
+        with contextlib.suppress(OSError):
+            os.kill(child, signal.SIGTERM)
+    deadline = time.monotonic() + LOCAL_CANCEL_GRACE_S
+    while time.monotonic() < deadline and any(_alive(c) for c in tasks):
+        time.sleep(0.1)
+    for victim in [*_descendants(pid), pid]:
+        with contextlib.suppress(OSError):
+            os.kill(victim, signal.SIGKILL)
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` still runs (a zombie counts as ended)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
 
 
 def _check_cluster(settings: SlurmSettings) -> None:
