@@ -172,37 +172,17 @@ def confidence_sequence(
     return Sequence(int(d.size), float(d.mean()), low, high, bound, threshold, verdict)
 
 
-def paired_differences(
+def pairs(
     a: np.ndarray | list[float],
     b: np.ndarray | list[float],
     a_fixed: bool = False,
     b_fixed: bool = False,
-) -> np.ndarray:
-    """A - B as one sequence of independent differences: the i-th run of A (in seed order)
-    less the i-th of B, as many as the shorter side has; a fixed side (a bot: one value) is
-    subtracted from every run of the other. The pairing is fixed before any value is seen
-    (by seed number), so the differences are i.i.d. with mean mean(A) - mean(B)."""
-    xa, xb = np.asarray(a, dtype=float).ravel(), np.asarray(b, dtype=float).ravel()
-    if a_fixed and b_fixed:
-        raise ValueError("a comparison needs runs on at least one side")
-    if b_fixed:
-        return xa - (xb[0] if xb.size else math.nan) if xb.size else xa[:0]
-    if a_fixed:
-        return (xa[0] - xb) if xa.size else xb[:0]
-    n = min(xa.size, xb.size)
-    return xa[:n] - xb[:n]
-
-
-def paired_wins(
-    a: np.ndarray | list[float],
-    b: np.ndarray | list[float],
-    a_fixed: bool = False,
-    b_fixed: bool = False,
-) -> np.ndarray:
-    """Who wins each pair of :func:`paired_differences` (scores, higher is better; -inf: a run
-    without a result): +1 where A's score is higher, -1 where B's is, 0 on a tie, two misses
-    included. A difference of two misses is undefined (nan), a comparison is not, which is why
-    this compares instead of taking the sign of the differences."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """A's and B's values pair by pair: the i-th run of A (in seed order) against the i-th of
+    B, as many pairs as the shorter side has; a fixed side (a bot: one value) meets every run
+    of the other. The pairing is fixed before any value is seen (by seed number), so the
+    pairs are i.i.d.; the one pairing rule of :func:`paired_differences` and
+    :func:`paired_wins`."""
     xa, xb = np.asarray(a, dtype=float).ravel(), np.asarray(b, dtype=float).ravel()
     if a_fixed and b_fixed:
         raise ValueError("a comparison needs runs on at least one side")
@@ -211,7 +191,31 @@ def paired_wins(
     elif a_fixed:
         xa = np.full(xb.shape, xa[0]) if xa.size else xa
     n = min(xa.size, xb.size)
-    xa, xb = xa[:n], xb[:n]
+    return xa[:n], xb[:n]
+
+
+def paired_differences(
+    a: np.ndarray | list[float],
+    b: np.ndarray | list[float],
+    a_fixed: bool = False,
+    b_fixed: bool = False,
+) -> np.ndarray:
+    """A - B for each of :func:`pairs`: i.i.d. differences with mean mean(A) - mean(B)."""
+    xa, xb = pairs(a, b, a_fixed, b_fixed)
+    return xa - xb
+
+
+def paired_wins(
+    a: np.ndarray | list[float],
+    b: np.ndarray | list[float],
+    a_fixed: bool = False,
+    b_fixed: bool = False,
+) -> np.ndarray:
+    """Who wins each of :func:`pairs` (scores, higher is better; -inf: a run without a
+    result): +1 where A's score is higher, -1 where B's is, 0 on a tie, two misses included.
+    A difference of two misses is undefined (nan), a comparison is not, which is why this
+    compares instead of taking the sign of the differences."""
+    xa, xb = pairs(a, b, a_fixed, b_fixed)
     return (xa > xb).astype(float) - (xa < xb).astype(float)
 
 

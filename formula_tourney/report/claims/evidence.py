@@ -40,6 +40,7 @@ import numpy as np
 from scipy import stats as sps
 
 from formula_tourney.claims import sequential
+from formula_tourney.claims.schema import DecideOn
 from formula_tourney.report import stats
 
 SUPPORTED = "supported"
@@ -108,7 +109,7 @@ SEQUENTIAL = {"above": SUPPORTED, "below": CONTRADICTED, "open": INCONCLUSIVE, "
 
 
 def sequence_of(a: Sequence[float], b: Sequence[float], a_fixed: bool, b_fixed: bool,
-                scale: Scale, decide_on: str = "mean") -> sequential.Sequence | None:
+                scale: Scale, decide_on: DecideOn = "mean") -> sequential.Sequence | None:
     """The confidence sequence of A - B (scores in seed order; -inf counts as the miss, nan
     is no value); None without runs on a side or, for the mean, without a finite bound.
     Against a fixed side the differences lie in a span one bound wide
