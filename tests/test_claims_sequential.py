@@ -10,7 +10,6 @@ import pytest
 from scipy import stats
 
 from formula_tourney.claims.sequential import (
-    Sequence,
     confidence_sequence,
     paired_differences,
     paired_wins,
@@ -138,24 +137,25 @@ def test_a_bot_comparison_decides_sooner_on_its_span_than_on_the_symmetric_range
         confidence_sequence([1.0], 20.0, span=(-30.0, 1.0))
 
 
-def test_pairs_to_decide_projects_the_cs_at_its_observed_mean() -> None:
-    # mean 2 with the CS's lower end 6 below it at 5 pairs: 5 x (6 / 2)^2 = 45 pairs in all
-    open_ = Sequence(5, 2.0, -4.0, 9.0, 10.0, 0.0, "open")
-    assert pairs_to_decide(open_) == 45
-    below = Sequence(5, -2.0, -9.0, 1.0, 10.0, 0.0, "open")  # the upper end 3 above the mean
-    assert pairs_to_decide(below) == math.ceil(5 * (3.0 / 2.0) ** 2)
-    assert pairs_to_decide(Sequence(8, 3.0, 0.5, 5.0, 10.0, 0.0, "above")) == 8
-    assert pairs_to_decide(Sequence(4, 0.0, -3.0, 3.0, 10.0, 0.0, "open")) is None
+def test_pairs_to_decide_projects_the_observed_values_repeated() -> None:
+    # decided: its n; without values or at the threshold: no projection
+    assert pairs_to_decide(confidence_sequence([1.0] * 8, 1.0)) == 8
     assert pairs_to_decide(confidence_sequence([], BOUND)) is None
-    # a real CS: the projection lies beyond today's pairs, and the same effect decides by then
+    assert pairs_to_decide(confidence_sequence([2.0, -2.0] * 3, BOUND)) is None
+    # open: the first n at which the observed values, repeated in order, exclude 0
+    seen = [3.0, 1.0, 4.0, -1.0, 5.0]
+    need = pairs_to_decide(confidence_sequence(seen, BOUND))
+    assert need is not None and need > 5
+    repeated = (seen * (need // 5 + 1))[:need]
+    assert confidence_sequence(repeated, BOUND).verdict == "above"
+    assert confidence_sequence(repeated[:-1], BOUND).verdict == "open"
+    # a real CS: the projection from 5 values lies within a factor 2 of where it decides
     rng = np.random.default_rng(21)
     values = rng.normal(3.0, 2.0, 200)
-    first = confidence_sequence(values[:5], BOUND)
-    need = pairs_to_decide(first)
-    assert first.verdict == "open" and need is not None and need > 5
+    first = pairs_to_decide(confidence_sequence(values[:5], BOUND))
     decided_at = next(n for n in range(5, 201)
                       if confidence_sequence(values[:n], BOUND).verdict == "above")
-    assert decided_at <= 2 * need
+    assert first is not None and first / 2 <= decided_at <= 2 * first
 
 
 def test_paired_wins_count_a_miss_as_losing_to_any_lap_and_two_misses_as_a_tie() -> None:

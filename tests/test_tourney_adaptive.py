@@ -17,13 +17,17 @@ from pathlib import Path
 
 import pytest
 
+from formula_tourney.claims.sequential import confidence_sequence
 from formula_tourney.cli import main
 from formula_tourney.errors import UserInputError
 from formula_tourney.report.claims.judge import judge
 from formula_tourney.tourney.adaptive import (
+    CONTRADICTED,
     STOP_BUDGET,
     STOP_DECIDED,
     STOP_MAX_SEEDS,
+    STOP_OUT_OF_REACH,
+    SUPPORTED,
     ClaimLook,
     Look,
     allocate,
@@ -43,60 +47,82 @@ def _look(
     claim: str,
     a: list[tuple[str, str]],
     b: list[tuple[str, str]],
-    mean: float,
-    low: float,
-    high: float,
+    needed: int | None,
+    heading: str = SUPPORTED,
     n_a: int = 5,
     n_b: int = 5,
 ) -> Look:
-    return Look(
-        claim,
-        f"{claim} comparison",
-        "inconclusive",
-        tuple(a),
-        tuple(b),
-        n_a,
-        n_b,
-        min(n_a, n_b) if a and b else max(n_a, n_b),
-        mean,
-        low,
-        high,
-    )
+    pairs = min(n_a, n_b) if a and b else max(n_a, n_b)
+    return Look(claim, f"{claim} {a or 'bot'} vs {b or 'bot'}", "inconclusive", tuple(a),
+                tuple(b), n_a, n_b, pairs, 0.5, -0.2, 0.9, needed, heading)  # fmt: skip
 
 
-NEAR = _look("near", [("p1", "WIN1-MOT")], [], 3.0, -0.5, 6.5)
-"""Half-width 3.5, 0.5 short of excluding 0: one more run may decide it."""
-FAR = _look("far", [("p2", "PER1M-RC")], [], 0.2, -3.0, 3.4)
-"""Half-width 3.2, 3.0 short: far from a decision."""
+NEAR = _look("near", [("p1", "WIN1-MOT")], [], 8)
+"""Against a bot, projected to decide at 8 pairs: 3 more runs."""
+FAR = _look("far", [("p2", "PER1M-RC")], [], 30)
+"""Projected to decide at 30 pairs: 25 more runs."""
 
 
 def _claims(*looks: Look, verdict: str = "inconclusive") -> list[ClaimLook]:
     return [ClaimLook(x.claim, verdict, (x,)) for x in looks]
 
 
-def test_seeds_go_where_a_run_buys_the_most_decision_per_cpu_second() -> None:
+def test_the_projection_is_exact_for_wins_and_what_the_report_prices() -> None:
+    # won in every pair: 7 pairs decide, however many there are now (a 1/sqrt(n) model of
+    # the width at 3 pairs asked for more); a share of 2 in 3 repeated decides much later
+    assert confidence_sequence([1.0, 1.0, 1.0], 1.0).projected == 7
+    assert confidence_sequence([-1.0] * 5, 1.0).projected == 7
+    later = confidence_sequence([1.0, 1.0, -1.0], 1.0).projected
+    assert later is not None and later > 50
+    assert confidence_sequence([1.0, -1.0, 1.0, -1.0], 1.0).projected is None  # at the threshold
+    assert all(confidence_sequence([1.0] * n, 1.0).verdict == "open" for n in range(1, 7))
+    assert confidence_sequence([1.0] * 7, 1.0).verdict == "above"
+
+
+def test_seeds_go_to_the_claim_cheapest_to_decide_and_stop_at_its_projection() -> None:
     seeds = {("p1", "WIN1-MOT"): 5, ("p2", "PER1M-RC"): 5}
-    wave = allocate(_claims(NEAR, FAR), seeds, lambda t: 100.0, DESIGN, 1e9, set())
-    assert wave.picks[0]["claim"] == "near"  # same cost: the claim nearer its decision first
-    assert sum(wave.added.values()) == DESIGN.wave_seeds and wave.reason is None
-    assert wave.added[("p1", "WIN1-MOT")] == 3  # max_seeds 8: 3 more, then the far claim
-    assert wave.added[("p2", "PER1M-RC")] == 1
+    roomy = Adaptive(min_seeds=5, max_seeds=40, wave_seeds=6)
+    wave = allocate(_claims(NEAR, FAR), seeds, lambda t: 100.0, roomy, 1e9, set())
+    assert wave.picks[0]["claim"] == "near"  # 3 runs to decide against 25 at the same cost
+    assert wave.picks[0]["value_per_cpu_s"] == pytest.approx(1.0 / 300.0)
+    # the near claim gets the 3 runs it is projected to need, no more; the rest go far
+    assert wave.added == {("p1", "WIN1-MOT"): 3, ("p2", "PER1M-RC"): 3} and wave.reason is None
 
     def dear_near(t: tuple[str, str]) -> float:
-        return 1000.0 if t[0] == "p1" else 100.0  # ten times dearer per run
+        return 1000.0 if t[0] == "p1" else 100.0  # near: 3 000 s to decide, far: 2 500 s
 
-    wave = allocate(_claims(NEAR, FAR), seeds, dear_near, DESIGN, 1e9, set())
+    wave = allocate(_claims(NEAR, FAR), seeds, dear_near, roomy, 1e9, set())
     assert wave.picks[0]["claim"] == "far"
-    # value per CPU-s: near 0.61 / 1000 s, far 0.093 / 100 s
-    assert wave.picks[0]["value_per_cpu_s"] == pytest.approx(
-        3.2 * (1 - (5 / 6) ** 0.5) / 3.0 / 100.0
-    )
+    assert wave.picks[0]["value_per_cpu_s"] == pytest.approx(1.0 / 2500.0)
+
+
+def test_any_contradicted_comparison_decides_a_claim_so_only_the_cheapest_one_is_funded() -> None:
+    seeds = {("p1", "A"): 5, ("p1", "B"): 5, ("p1", "C"): 5}
+    roomy = Adaptive(min_seeds=5, max_seeds=40, wave_seeds=8)
+    claim = ClaimLook("c", "inconclusive", (
+        _look("c", [("p1", "A")], [], 7, CONTRADICTED),
+        _look("c", [("p1", "B")], [], 9, CONTRADICTED),
+        _look("c", [("p1", "C")], [], 20, SUPPORTED),
+    ))  # fmt: skip
+    wave = allocate([claim], seeds, lambda t: 10.0, roomy, 1e9, set())
+    assert wave.added == {("p1", "A"): 2}  # A's 2 runs decide the claim; B and C get none
+    assert wave.open_parts == {"p1"}
+    # every comparison heading to supported: all of them are funded, to their projections
+    both = ClaimLook("s", "inconclusive", (_look("s", [("p1", "A")], [], 7),
+                                           _look("s", [("p1", "B")], [], 8)))  # fmt: skip
+    wave = allocate([both], seeds, lambda t: 10.0, roomy, 1e9, set())
+    assert wave.added == {("p1", "A"): 2, ("p1", "B"): 3}
+    # one heading each way: support is out of reach, the contradicting one decides it
+    mixed = ClaimLook("m", "inconclusive", (_look("m", [("p1", "A")], [], 12),
+                                            _look("m", [("p1", "B")], [], 9, CONTRADICTED)))
+    wave = allocate([mixed], seeds, lambda t: 10.0, roomy, 1e9, set())
+    assert wave.added == {("p1", "B"): 4}
 
 
 def test_a_pair_needs_the_shorter_side_and_a_pooled_side_its_least_seeded_entrant() -> None:
-    two = _look("two", [("p1", "A1"), ("p1", "A2")], [("p1", "B")], 1.0, -2.0, 4.0, n_a=6, n_b=5)
+    two = _look("two", [("p1", "A1"), ("p1", "A2")], [("p1", "B")], 20, n_a=6, n_b=5)
     seeds = {("p1", "A1"): 4, ("p1", "A2"): 2, ("p1", "B"): 5}
-    design = Adaptive(min_seeds=2, max_seeds=10, wave_seeds=3)
+    design = Adaptive(min_seeds=2, max_seeds=20, wave_seeds=3)
     wave = allocate(_claims(two), seeds, lambda t: 10.0, design, 1e9, set())
     # B is short of A: B first; then one each (A2 has the fewest seeds of A's entrants)
     assert [p["runs"] for p in wave.picks] == [["p1/B"], ["p1/A2", "p1/B"]]
@@ -114,17 +140,25 @@ def test_decided_claims_ask_for_nothing_and_the_run_stops_with_its_reason() -> N
     assert wave.added == {} and wave.reason == STOP_MAX_SEEDS
     wave = allocate(_claims(NEAR, FAR), seeds, lambda t: 1.0, DESIGN, 1e9, {"p1", "p2"})
     assert wave.added == {} and wave.reason == STOP_MAX_SEEDS  # closed parts take no seeds
+    never = _look("never", [("p1", "WIN1-MOT")], [], None)  # its observed wins are at 1/2
+    wave = allocate(_claims(never), seeds, lambda t: 1.0, DESIGN, 1e9, set())
+    assert wave.added == {} and wave.reason == STOP_OUT_OF_REACH
 
 
 def test_the_budget_stops_a_wave_and_then_the_run() -> None:
     seeds = {("p1", "WIN1-MOT"): 5, ("p2", "PER1M-RC"): 5}
-    wave = allocate(_claims(NEAR, FAR), seeds, lambda t: 100.0, DESIGN, 250.0, set())
-    assert sum(wave.added.values()) == 2 and wave.cpu_s == 200.0  # a third would pass it
-    wave = allocate(_claims(NEAR, FAR), seeds, lambda t: 100.0, DESIGN, 50.0, set())
-    assert wave.added == {} and wave.reason == STOP_BUDGET
-    roomy = Adaptive(min_seeds=5, max_seeds=20, wave_seeds=4)
-    wave = allocate(_claims(NEAR), seeds, lambda t: 1.0, roomy, 1e9, set())
-    assert wave.open_parts == {"p1"}  # p2 is read by no undecided claim: settled
+    roomy = Adaptive(min_seeds=5, max_seeds=40, wave_seeds=4)
+    # 400 s: the near claim's 3 runs fit; the far one's 25 do not, so it gets none
+    wave = allocate(_claims(NEAR, FAR), seeds, lambda t: 100.0, roomy, 400.0, set())
+    assert wave.added == {("p1", "WIN1-MOT"): 3} and wave.cpu_s == 300.0
+    assert wave.open_parts == {"p1", "p2"}  # a later budget-free run could still fund p2
+    never = _look("never", [("p2", "PER1M-RC")], [], None)
+    wave = allocate(_claims(NEAR, never), seeds, lambda t: 100.0, roomy, 400.0, set())
+    assert wave.open_parts == {"p1"}  # p2 is on no path that can decide: settled, it may promote
+    wave = allocate(_claims(FAR), seeds, lambda t: 100.0, roomy, 400.0, set())
+    assert wave.added == {} and wave.reason == STOP_OUT_OF_REACH and not wave.open_parts
+    wave = allocate(_claims(NEAR, FAR), seeds, lambda t: 100.0, roomy, 50.0, set())
+    assert wave.added == {} and wave.reason == STOP_BUDGET  # not even one run fits
     wave = allocate(_claims(NEAR), seeds, lambda t: 1.0, DESIGN, 1e9, set())
     assert wave.open_parts == set()  # p1 reached max_seeds in this wave
 
@@ -291,17 +325,10 @@ def _verdicts(state: dict) -> list[tuple[dict, list[str]]]:
 def test_kill_9_in_the_middle_of_a_wave_resumes_to_the_same_seeds_and_verdicts(
     tmp_path: Path,
 ) -> None:
-    adaptive = "min_seeds = 2\nmax_seeds = 3\nwave_seeds = 2"
-    path = _file(
-        tmp_path,
-        adaptive,
-        ONE_PART,
-        '{ variant = "WIN1" }',
-        '{ variant = "MS2" }',
-        "WIN1 reaches a higher reward than MS2",
-    )
+    # wave 1 reads 2 pairs and projects 8: wave 2 adds 6 runs of each part
+    path = _long_short(tmp_path, "min_seeds = 2\nmax_seeds = 16\nwave_seeds = 20")
     whole = run_tournament(path, workers=2, results_dir=tmp_path / "whole", judge=judge)
-    # the same file, killed while wave 2's MS2 run (seed 2) sleeps and WIN1's has finished
+    # the same file, killed while wave 2's short run at seed 2 sleeps and the long one's is done
     proc = subprocess.Popen(
         [
             sys.executable,
@@ -316,7 +343,7 @@ def test_kill_9_in_the_middle_of_a_wave_resumes_to_the_same_seeds_and_verdicts(
             "--json",
         ],
         cwd=REPO,
-        env={**os.environ, FAULTS_ENV: json.dumps({"p1/MS2-MOT/seed-2": "sleep:60"})},
+        env={**os.environ, FAULTS_ENV: json.dumps({"short/WIN1-MOT/seed-2": "sleep:60"})},
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -331,8 +358,8 @@ def test_kill_9_in_the_middle_of_a_wave_resumes_to_the_same_seeds_and_verdicts(
         except sqlite3.OperationalError:
             jobs = {}
         if (
-            jobs.get("p1/WIN1-MOT/seed-2", {}).get("status") == "done"
-            and jobs.get("p1/MS2-MOT/seed-2", {}).get("status") == "running"
+            jobs.get("long/WIN1-MOT/seed-2", {}).get("status") == "done"
+            and jobs.get("short/WIN1-MOT/seed-2", {}).get("status") == "running"
         ):
             break
         time.sleep(0.2)
@@ -340,11 +367,18 @@ def test_kill_9_in_the_middle_of_a_wave_resumes_to_the_same_seeds_and_verdicts(
     proc.communicate(timeout=30)
     killed = json.loads((root / "adaptive.json").read_text())
     assert killed["stopped"] is None and len(killed["waves"]) == 1
+    kept = {k: r for k, r in _index_rows(root).items() if r["status"] == "done"}
+    assert "long/WIN1-MOT/seed-2" in kept
     resumed = run_tournament(path, workers=2, results_dir=tmp_path / "res", judge=judge)
-    assert resumed["this_run"]["done"] == 1  # only the run the kill interrupted
+    # every job done before the kill is kept as it was (a worker may finish one more as the
+    # kill lands): only the rest run
+    assert resumed["this_run"]["done"] <= whole["this_run"]["done"] - len(kept)
+    after = _index_rows(root)
+    assert all(after[k] == r for k, r in kept.items())
     assert _verdicts(resumed["adaptive"]) == _verdicts(whole["adaptive"])
     assert resumed["adaptive"]["stopped"] == whole["adaptive"]["stopped"]
-    assert resumed["adaptive"]["stopped"]["reason"] == STOP_MAX_SEEDS
+    assert resumed["adaptive"]["stopped"]["reason"] == STOP_DECIDED
+    assert len(whole["adaptive"]["waves"]) >= 3  # the kill fell in a wave after the first
 
 
 # ------------------------------------------------------------------------- cost up front

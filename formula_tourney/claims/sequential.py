@@ -58,6 +58,9 @@ quarters of the capital is staked on one value, so a clear effect is decided fro
 (with 1/2: from 10; a factor of at most 1 + c per pair must reach 2 / alpha)."""
 GRID_POINTS = 2001
 """Candidate means on [0, 1]: the CS's ends are read to 1/2000 of the range."""
+PROJECTION_LIMIT = 1000
+"""Pairs the projection of an open CS looks ahead (:func:`projected_pairs`): a comparison that
+would need more is out of reach of any tournament this tool runs."""
 
 
 def bets(x: np.ndarray, alpha: float = ALPHA) -> np.ndarray:
@@ -106,6 +109,10 @@ class Sequence:
     verdict: str
     """``above`` (the CS lies above the threshold), ``below``, ``open`` (it contains it) or
     ``empty`` (no values)."""
+    projected: int | None = None
+    """Pairs in all at which the CS would first exclude the threshold if the values seen so
+    far came again in the same order (:func:`projected_pairs`); its ``n`` once decided, None
+    without values or beyond ``PROJECTION_LIMIT``."""
 
     @property
     def half_width(self) -> float:
@@ -120,6 +127,7 @@ class Sequence:
             "bound": self.bound,
             "threshold": self.threshold,
             "verdict": self.verdict,
+            "projected_pairs": self.projected,
         }
 
 
@@ -169,7 +177,27 @@ def confidence_sequence(
         low, high = (
             (max(low, threshold), high) if verdict == "above" else (low, min(high, threshold))
         )
-    return Sequence(int(d.size), float(d.mean()), low, high, bound, threshold, verdict)
+    projected = int(d.size) if verdict != "open" else projected_pairs(x, m0, alpha)
+    return Sequence(int(d.size), float(d.mean()), low, high, bound, threshold, verdict, projected)
+
+
+def projected_pairs(x: np.ndarray, m0: float, alpha: float = ALPHA) -> int | None:
+    """The pairs in all at which the CS of values ``x`` (in [0, 1]) would first exclude the
+    candidate mean ``m0`` if ``x`` came again and again in the same order; None if not within
+    ``PROJECTION_LIMIT`` pairs (a mean at the threshold never does).
+
+    Exact for the betting CS, not a 1/sqrt(n) rate: its plug-in bets grow as the running
+    variance settles, so a comparison won in every pair is decided at 7 pairs however many it
+    has now, where a 1/sqrt(n) model of the width asks for more. Repeating the observed values
+    keeps their spread and their share of wins; the projection is what a sequential run
+    allocates seeds by (``tourney.adaptive``), and what the report prices an open comparison
+    at."""
+    x = np.asarray(x, dtype=float).ravel()
+    if x.size == 0:
+        return None
+    ahead = np.resize(x, max(PROJECTION_LIMIT, x.size))
+    hit = np.flatnonzero(log_capital(ahead, m0, alpha)[:, 0] >= math.log(1.0 / alpha))
+    return int(hit[0]) + 1 if hit.size else None
 
 
 def pairs(
@@ -220,18 +248,7 @@ def paired_wins(
 
 
 def pairs_to_decide(seq: Sequence) -> int | None:
-    """The pairs a comparison would need in all for its CS to decide, if the mean stayed as
-    observed and the CS narrowed like 1/sqrt(n) (the model a sequential run allocates seeds
-    by, ``tourney.adaptive``): ``n (gap / |mean - threshold|)^2``, ``gap`` the distance from
-    the mean to the end of the CS that still holds the threshold. A projection, not a
-    promise: the betting CS narrows a little slower than 1/sqrt(n) at first, and the mean
-    moves. Its ``n`` if decided; None without values or with the mean at the threshold."""
-    if seq.verdict in ("above", "below"):
-        return seq.n
-    if seq.n == 0 or not math.isfinite(seq.mean):
-        return None
-    effect = seq.mean - seq.threshold
-    if effect == 0.0:
-        return None
-    gap = seq.mean - seq.low if effect > 0 else seq.high - seq.mean
-    return max(seq.n + 1, math.ceil(seq.n * (gap / abs(effect)) ** 2))
+    """The pairs a comparison needs in all for its CS to decide: its ``n`` if decided, else
+    the projection of its observed values (:func:`projected_pairs`); None without values or
+    out of reach. A projection, not a promise: the values to come differ from those seen."""
+    return seq.n if seq.verdict in ("above", "below") else seq.projected

@@ -9,26 +9,34 @@ reading after every wave keeps its 5 % error. Then :func:`allocate` chooses the 
 
 - only comparisons of undecided claims that are themselves undecided ask for seeds; a claim
   is decided when its sequential verdict is supported or contradicted;
+- each comparison is projected to the pairs its CS needs in all if the values seen so far
+  came again in the same order (``claims.sequential.projected_pairs``: exact for the betting
+  CS, so a comparison won in every pair needs 7, not the more a 1/sqrt(n) model would ask
+  for), and priced at the runs that takes (each side's entrants' mean measured job seconds);
+- a claim is decided by any one contradicted comparison or by all supported
+  (``report.claims.evidence.overall``), so it is priced at the cheaper of its cheapest
+  comparison heading to contradicted and the sum of its comparisons when all head to
+  supported; only the comparisons of that path get seeds;
 - one more *pair* of a comparison (the i-th run of A against the i-th of B) needs a run of the
   side with fewer runs (both when even; a bot side none), of that side's entrant with the
   fewest seeds below ``max_seeds`` in a part still open;
-- its value is the expected shrink of the confidence sequence's half-width ``h`` from one more
-  pair, ``h (1 - sqrt(n / (n + 1)))`` (a CS narrows like ``1/sqrt(n)``), as a share of how far
-  the end of the sequence that still holds the threshold must move to exclude it (capped at
-  1), divided by the CPU-seconds of the runs it needs (the entrant's mean measured job
-  seconds so far);
-- the wave takes the best value per CPU-second first, one pair at a time (the chosen
-  comparison's ``h`` shrinks as predicted), until it holds ``wave_seeds`` jobs or the next
-  pair would pass the budget.
+- the wave takes the claim with the cheapest path first (the most decisions per CPU-second),
+  one pair at a time, and stops funding a comparison once it holds its projected pairs, until
+  the wave holds ``wave_seeds`` jobs;
+- a claim that is projected never to decide (its mean at the threshold, or past
+  ``claims.sequential.PROJECTION_LIMIT`` pairs, or past ``max_seeds``) or to need more than
+  the budget left gets no seeds: spending on it would leave the budget spent and the claim
+  open. Projections from the first few pairs are rough; each wave projects again.
 
 Promotion waits for its source part to be *settled*: no undecided comparison can still give
-seeds to it (every one reading it is decided or at ``max_seeds``), or no wave can be added; a
-part no other part promotes from stays open until the run stops. A wave that adds nothing
-releases every source part (its promotion runs, and the promoted parts start at
-``min_seeds``); when nothing is left to run the run stops, with its reason: every claim
-decided, the budget spent, or the undecided claims' entrants at ``max_seeds`` (or without
-runs to read). The budget counts every job's seconds (``wall_s`` of one-thread workers); the
-``min_seeds`` runs of every part always run, so the budget limits the seeds added beyond them.
+seeds to it (every one reading it is decided, at ``max_seeds`` or off every claim's path), or
+no wave can be added; a part no other part promotes from stays open until the run stops. A
+wave that adds nothing releases every source part (its promotion runs, and the promoted
+parts start at ``min_seeds``); when nothing is left to run the run stops, with its reason:
+every claim decided, the budget spent, the undecided claims out of the budget's reach, or
+their entrants at ``max_seeds`` (or without runs to read). The budget counts every job's
+seconds (``wall_s`` of one-thread workers); the ``min_seeds`` runs of every part always run,
+so the budget limits the seeds added beyond them.
 
 Seeds added later are new jobs with the next seed numbers (``tourney.plan.Planner.seeds``),
 so the same seed is always the same job. Every decision is written atomically to
@@ -59,6 +67,7 @@ STOP_DECIDED = "every claim is decided"
 STOP_BUDGET = "the CPU budget is spent"
 STOP_MAX_SEEDS = "the undecided claims' entrants are at max_seeds"
 STOP_NO_RUNS = "the undecided claims have no runs to read"
+STOP_OUT_OF_REACH = "the undecided claims are projected to need more than the budget left"
 
 
 def target_key(part: str, entrant: str) -> str:
@@ -69,7 +78,9 @@ def target_key(part: str, entrant: str) -> str:
 @dataclass(frozen=True)
 class Look:
     """One comparison of a claim as read after a wave: who each side's runs are (``part``,
-    ``entrant``; none for a bot), how many runs each has, and its confidence sequence."""
+    ``entrant``; none for a bot), how many runs each has, its confidence sequence, the pairs
+    it is projected to need in all (``claims.sequential.pairs_to_decide``: None where the
+    values seen so far, repeated, never decide) and the verdict its mean heads to."""
 
     claim: str
     label: str
@@ -82,14 +93,8 @@ class Look:
     mean: float
     low: float
     high: float
-
-    @property
-    def half_width(self) -> float:
-        return 0.5 * (self.high - self.low)
-
-    def shortfall(self) -> float:
-        """How far the end of the CS on the threshold's side must move to exclude 0."""
-        return max(-self.low if self.mean >= 0.0 else self.high, 1e-12)
+    needed: int | None = None
+    heading: str = INCONCLUSIVE
 
     def to_json(self) -> dict[str, Any]:
         out = asdict(self)
@@ -152,6 +157,66 @@ def _needs(look: Look, n_a: int, n_b: int) -> list[str]:
     return ["a"] if n_a < n_b else ["b"] if n_b < n_a else ["a", "b"]
 
 
+@dataclass
+class _Open:
+    """An undecided comparison while a wave is chosen: its runs and pairs so far (the wave's
+    picks included) and the pairs it is projected to need."""
+
+    look: Look
+    n_a: int
+    n_b: int
+    pairs: int
+
+    @property
+    def left(self) -> int:
+        return max(0, (self.look.needed or 0) - self.pairs)
+
+    def cost_s(
+        self,
+        cost: Callable[[tuple[str, str]], float],
+        seeds: dict[tuple[str, str], int],
+        design: Adaptive,
+        closed: set[str],
+    ) -> float:
+        """CPU-seconds of the runs it still needs to reach its projected pairs (a side's
+        runs at its entrants' mean cost); inf where it never decides at its observed values
+        or its entrants have no room left below max_seeds."""
+        if self.look.needed is None:
+            return math.inf
+        total = 0.0
+        for targets, have in ((self.look.a_targets, self.n_a), (self.look.b_targets, self.n_b)):
+            runs = max(0, self.look.needed - have) if targets else 0
+            if not runs:
+                continue
+            room = sum(max(0, design.max_seeds - seeds.get(t, design.min_seeds))
+                       for t in targets if t[0] not in closed)  # fmt: skip
+            if runs > room:
+                return math.inf
+            total += runs * sum(max(cost(t), 1e-3) for t in targets) / len(targets)
+        return total
+
+
+def _path(
+    claim: ClaimLook,
+    opened: dict[int, _Open],
+    price: Callable[[_Open], float],
+) -> tuple[float, list[_Open]]:
+    """The cheaper way to decide a claim and its CPU-seconds: one comparison heading to
+    contradicted (any contradicted comparison decides it, ``report.claims.evidence.overall``)
+    or every undecided comparison to supported (inf if one heads elsewhere or has no runs)."""
+    mine = [opened[id(x)] for x in claim.looks if id(x) in opened]
+    contra = [(price(o), o) for o in mine if o.look.heading == CONTRADICTED]
+    best: tuple[float, list[_Open]] = min(
+        ((c, [o]) for c, o in contra), key=lambda p: p[0], default=(math.inf, [])
+    )
+    unsettled = [x for x in claim.looks if x.verdict != SUPPORTED]
+    if all(id(x) in opened and opened[id(x)].look.heading == SUPPORTED for x in unsettled):
+        support = sum(price(o) for o in mine)
+        if support < best[0] or not best[1]:
+            best = (support, mine)
+    return best
+
+
 def allocate(
     claims: list[ClaimLook],
     seeds: dict[tuple[str, str], int],
@@ -164,73 +229,85 @@ def allocate(
     seeds now; ``cost_s``: an entrant's CPU-seconds per run; ``closed``: parts that take no
     more seeds."""
     wave = Wave()
-    state: dict[int, dict[str, float]] = {}
-    looks = [x for c in claims if c.verdict not in DECIDED for x in c.looks
-             if x.verdict == INCONCLUSIVE and x.pairs >= 1]  # fmt: skip
-    if not looks:
-        undecided = [c for c in claims if c.verdict not in DECIDED]
+    undecided = [c for c in claims if c.verdict not in DECIDED]
+    opened = {id(x): _Open(x, x.n_a, x.n_b, x.pairs) for c in undecided for x in c.looks
+              if x.verdict == INCONCLUSIVE and x.pairs >= 1}  # fmt: skip
+    if not opened:
         wave.reason = STOP_NO_RUNS if undecided else STOP_DECIDED
         return wave
-    for k, look in enumerate(looks):
-        state[k] = {
-            "n_a": look.n_a,
-            "n_b": look.n_b,
-            "pairs": look.pairs,
-            "h": look.half_width,
-            "short": look.shortfall(),
-        }
     tentative = dict(seeds)
-    over_budget = False
+    blocked: set[str] = set()
+
+    def price(o: _Open) -> float:
+        return o.cost_s(cost_s, tentative, design, closed)
+
     while sum(wave.added.values()) < design.wave_seeds:
-        best: tuple[float, int, list[tuple[str, str]], float] | None = None
-        for k, look in enumerate(looks):
-            st = state[k]
-            picks = []
-            for side in _needs(look, int(st["n_a"]), int(st["n_b"])):
-                pick = _side_pick(
-                    look.a_targets if side == "a" else look.b_targets, tentative, design, closed
-                )
-                if pick is None:
-                    break
-                picks.append(pick)
-            else:
-                cost = sum(max(cost_s(t), 1e-3) for t in picks)
-                if cost > budget_left_s - wave.cpu_s:
-                    over_budget = True
-                    continue
-                n = st["pairs"]
-                shrink = st["h"] * (1.0 - math.sqrt(n / (n + 1.0)))
-                value = min(1.0, shrink / st["short"]) / cost
-                if best is None or value > best[0]:
-                    best = (value, k, picks, cost)
+        best: tuple[float, ClaimLook, list[_Open]] | None = None
+        for claim in undecided:
+            cost, path = _path(claim, opened, price)
+            if path and cost <= 0.0:
+                continue  # projected decided by the runs this wave has chosen
+            if math.isinf(cost):
+                blocked.add(STOP_MAX_SEEDS if path and all(o.look.needed for o in path)
+                            else STOP_OUT_OF_REACH)  # fmt: skip
+                continue
+            left_s = budget_left_s - wave.cpu_s
+            if cost > left_s:
+                one_run_s = min(max(cost_s(t), 1e-3) for o in path
+                                for t in (*o.look.a_targets, *o.look.b_targets))  # fmt: skip
+                blocked.add(STOP_BUDGET if one_run_s > left_s else STOP_OUT_OF_REACH)
+                continue
+            if best is None or cost < best[0]:
+                best = (cost, claim, path)
         if best is None:
             break
-        value, k, picks, cost = best
-        st, look = state[k], looks[k]
-        shrink = st["h"] * (1.0 - math.sqrt(st["pairs"] / (st["pairs"] + 1.0)))
-        st["h"] -= shrink
-        st["short"] = max(st["short"] - shrink, 1e-12)
-        st["pairs"] += 1
+        path_cost, claim, path = best
+        o = max((x for x in path if x.left > 0), key=lambda x: x.left)
+        picks = []
+        for side in _needs(o.look, o.n_a, o.n_b):
+            pick = _side_pick(
+                o.look.a_targets if side == "a" else o.look.b_targets, tentative, design, closed
+            )
+            if pick is None:
+                break
+            picks.append(pick)
+        cost = sum(max(cost_s(t), 1e-3) for t in picks)
+        if len(picks) < len(_needs(o.look, o.n_a, o.n_b)) or cost > budget_left_s - wave.cpu_s:
+            blocked.add(STOP_BUDGET if picks else STOP_MAX_SEEDS)
+            break
+        o.pairs += 1
         for t in picks:
             tentative[t] = tentative.get(t, design.min_seeds) + 1
             wave.added[t] = wave.added.get(t, 0) + 1
-            st["n_a" if t in look.a_targets else "n_b"] += 1
+            if t in o.look.a_targets:
+                o.n_a += 1
+            else:
+                o.n_b += 1
         wave.cpu_s += cost
         wave.picks.append(
             {
-                "claim": look.claim,
-                "comparison": look.label,
+                "claim": claim.claim,
+                "comparison": o.look.label,
                 "runs": [target_key(*t) for t in picks],
-                "value_per_cpu_s": value,
+                "value_per_cpu_s": 1.0 / path_cost,
                 "cpu_s": cost,
+                "projected_pairs": o.look.needed,
             }
         )
-    for look in looks:
-        for t in (*look.a_targets, *look.b_targets):
-            if t[0] not in closed and tentative.get(t, design.min_seeds) < design.max_seeds:
-                wave.open_parts.add(t[0])
+    for claim in undecided:
+        cost, path = _path(claim, opened, price)
+        if math.isfinite(cost):
+            for o in path:
+                for t in (*o.look.a_targets, *o.look.b_targets):
+                    if t[0] not in closed and tentative.get(t, design.min_seeds) < design.max_seeds:
+                        wave.open_parts.add(t[0])
     if not wave.added:
-        wave.reason = STOP_BUDGET if over_budget else STOP_MAX_SEEDS
+        cheapest_run_s = min(max(cost_s(t), 1e-3) for o in opened.values()
+                             for t in (*o.look.a_targets, *o.look.b_targets))  # fmt: skip
+        if cheapest_run_s > budget_left_s:
+            blocked.add(STOP_BUDGET)
+        wave.reason = next((r for r in (STOP_BUDGET, STOP_OUT_OF_REACH, STOP_MAX_SEEDS)
+                            if r in blocked), STOP_MAX_SEEDS)  # fmt: skip
         wave.open_parts.clear()
     return wave
 

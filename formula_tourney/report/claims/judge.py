@@ -13,12 +13,13 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from formula_tourney.claims.sequential import pairs_to_decide
 from formula_tourney.report.claims.evaluate import ClaimResult, Comparison, evaluate_all
 from formula_tourney.report.claims.sources import resolve_claims
 from formula_tourney.report.load import load_tournament
 from formula_tourney.report.paper_tables import Context
 from formula_tourney.results.index import read_meta
-from formula_tourney.tourney.adaptive import ClaimLook, Look
+from formula_tourney.tourney.adaptive import CONTRADICTED, INCONCLUSIVE, SUPPORTED, ClaimLook, Look
 
 
 def _targets(ctx: Context, job_ids: list[str]) -> tuple[tuple[str, str], ...]:
@@ -43,6 +44,9 @@ def _look(ctx: Context, claim_id: str, comp: Comparison) -> Look:
         n_a=len(comp.a_runs), n_b=len(comp.b_runs), pairs=seq.n if seq else 0,
         mean=seq.mean if seq else math.nan, low=seq.low if seq else math.nan,
         high=seq.high if seq else math.nan,
+        needed=pairs_to_decide(seq) if seq else None,
+        heading=INCONCLUSIVE if seq is None or seq.mean == seq.threshold
+        else SUPPORTED if seq.mean > seq.threshold else CONTRADICTED,
     )  # fmt: skip
 
 
