@@ -65,9 +65,9 @@ def claims_table(results: list[ClaimResult], origin: str) -> ReportTable:
             "decides; a miss counts as the worst bounded value) and its verdict; for a claim "
             "decided on wins, the sequence of who wins each pair, shown as P(A better) (P ...: "
             "decided against 1/2; a miss loses to any result). CS pairs: the "
-            "pairs it would need in all to decide if the mean stayed as observed and it "
-            "narrowed like 1/sqrt(n) (a projection); CPU-h more: those not yet run, at the "
-            "measured CPU-seconds of a run of each side."
+            "pairs it would need in all to decide if the values seen so far came again in the "
+            "same order (a projection; - where it would never decide or need more than 1000); "
+            "CPU-h more: those not yet run, at the measured CPU-seconds of a run of each side."
         ),
         groups=[GROUP] if results else [], metrics={GROUP: list(METRICS)} if results else {},
     )
