@@ -65,7 +65,7 @@ SUPPORTED, CONTRADICTED, INCONCLUSIVE = "supported", "contradicted", "inconclusi
 DECIDED = (SUPPORTED, CONTRADICTED)
 STOP_DECIDED = "every claim is decided"
 STOP_BUDGET = "the CPU budget is spent"
-STOP_MAX_SEEDS = "the undecided claims' entrants are at max_seeds"
+STOP_MAX_SEEDS = "the undecided claims need more seeds than max_seeds allows"
 STOP_NO_RUNS = "the undecided claims have no runs to read"
 STOP_OUT_OF_REACH = "the undecided claims are projected to need more than the budget left"
 
