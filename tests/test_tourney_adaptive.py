@@ -67,7 +67,7 @@ def _claims(*looks: Look, verdict: str = "inconclusive") -> list[ClaimLook]:
     return [ClaimLook(x.claim, verdict, (x,)) for x in looks]
 
 
-def test_the_projection_is_exact_for_wins_and_what_the_report_prices() -> None:
+def test_the_projection_of_wins_is_exact() -> None:
     # won in every pair: 7 pairs decide, however many there are now (a 1/sqrt(n) model of
     # the width at 3 pairs asked for more); a share of 2 in 3 repeated decides much later
     assert confidence_sequence([1.0, 1.0, 1.0], 1.0).projected == 7
