@@ -15,11 +15,12 @@ from pathlib import Path
 
 from formula_tourney.claims.sequential import pairs_to_decide
 from formula_tourney.report.claims.evaluate import ClaimResult, Comparison, evaluate_all
+from formula_tourney.report.claims.evidence import SEQUENTIAL
 from formula_tourney.report.claims.sources import resolve_claims
 from formula_tourney.report.load import load_tournament
 from formula_tourney.report.paper_tables import Context
 from formula_tourney.results.index import read_meta
-from formula_tourney.tourney.adaptive import CONTRADICTED, INCONCLUSIVE, SUPPORTED, ClaimLook, Look
+from formula_tourney.tourney.adaptive import INCONCLUSIVE, ClaimLook, Look
 
 
 def _targets(ctx: Context, job_ids: list[str]) -> tuple[tuple[str, str], ...]:
@@ -46,7 +47,7 @@ def _look(ctx: Context, claim_id: str, comp: Comparison) -> Look:
         high=seq.high if seq else math.nan,
         needed=pairs_to_decide(seq) if seq else None,
         heading=INCONCLUSIVE if seq is None or seq.mean == seq.threshold
-        else SUPPORTED if seq.mean > seq.threshold else CONTRADICTED,
+        else SEQUENTIAL["above" if seq.mean > seq.threshold else "below"],
     )  # fmt: skip
 
 
