@@ -166,7 +166,8 @@ def test_each_setting_is_declared_once_in_the_table() -> None:
         assert added_in_layout(field) == s.added_in_layout
         assert beyond_paper(field) == s.beyond_paper
     assert [s.name for s in R.SETTINGS if s.beyond_paper] == [
-        "track_pos_weight", "progress_reward", "wall_energy_weight", "crash_penalty"]
+        "track_pos_weight", "progress_reward", "wall_energy_weight", "crash_penalty",
+        "crash_penalty_decay_steps"]
     with pytest.raises(ValueError, match="less than or equal to 10"):
         EnvSettings(track_pos_weight=11.0)
     with pytest.raises(ValueError, match="greater than 0"):

@@ -153,6 +153,53 @@ def test_a_crash_penalty_is_written_and_read_back_and_refused_when_negative() ->
         build_run_spec(variant="WIN1", overrides={"crash_penalty": -1.0}, train_tracks=["oval"])
 
 
+def test_a_decaying_crash_penalty_falls_linearly_to_zero_at_its_env_steps() -> None:
+    """``crash_penalty_decay_steps`` D: the penalty of a transition stored after t env steps
+    is P (1 - t / D), 0 from D on; the rule of a run without it never changes."""
+    rule = RewardRule(0.5, 300.0, decay_steps=100_000)
+    assert rule.decays and rule.at(0) == rule
+    assert [rule.at(t).crash_penalty for t in (25_000, 50_000, 100_000, 250_000)] \
+        == [225.0, 150.0, 0.0, 0.0]
+    assert rule.at(50_000)(-1.0, True) == (-1.0 - 150.0) * 0.5
+    assert rule.at(50_000)(71.25, False) == 71.25 * 0.5  # a step that goes on pays nothing
+    steady = RewardRule(0.5, 300.0)
+    assert not steady.decays and steady.at(10**9) is steady
+    cfg = get_variant("WIN1", {"crash_penalty": 300.0, "crash_penalty_decay_steps": 100_000})
+    assert RewardRule.of(cfg) == RewardRule(0.02, 300.0, decay_steps=100_000)
+    with pytest.raises(UserInputError, match="needs a crash_penalty above 0"):
+        get_variant("WIN1", {"crash_penalty_decay_steps": 100_000})
+
+
+def test_the_loop_stores_each_step_with_the_decayed_penalty_of_its_env_step(
+    tmp_path, ring_tracks, monkeypatch
+) -> None:
+    """The training loop hands the collector the rule of each env step: a penalty of 300
+    decaying over 100 steps is 300 at the first step, 150 at step 50 and 0 from step 100 on;
+    the setting is written to config.json only when set."""
+    seen: list[float] = []
+    original = RewardRule.__call__
+
+    def record(self, reward, terminated):  # noqa: ANN001, ANN202 - the rule's own signature
+        seen.append(self.crash_penalty)
+        return original(self, reward, terminated)
+
+    monkeypatch.setattr(RewardRule, "__call__", record)
+    spec = build_run_spec(
+        variant="WIN1",
+        overrides={**SMALL, "crash_penalty": 300.0, "crash_penalty_decay_steps": 100},
+        train_tracks=["ringA"], device="cpu", seed=1,
+        schedule={"episodes": 500, "env_steps": 130, "max_steps": 40, "test_every_episodes": 1000,
+                  "test_starts": 1, "test_max_steps": 10},
+    )  # fmt: skip
+    loop.train(spec, tmp_path / "job")
+    assert len(seen) >= 130
+    assert seen[0] == 300.0 and seen[50] == 150.0 and set(seen[100:]) == {0.0}
+    assert spec.to_json()["agent"]["crash_penalty_decay_steps"] == 100
+    plain = build_run_spec(variant="WIN1", overrides={"crash_penalty": 300.0},
+                           train_tracks=["ringA"])  # fmt: skip
+    assert "crash_penalty_decay_steps" not in plain.to_json()["agent"]
+
+
 @pytest.mark.parametrize("floor", [0.0, 0.3])
 def test_epsilon_floor_keeps_the_loop_exploring_after_the_anneal(
     tmp_path, ring_tracks, monkeypatch, floor: float

@@ -99,6 +99,7 @@ class SharedSettings(BaseModel):
         description="Soft target update: theta' <- tau theta + (1-tau) theta'.",
     )
     crash_penalty: float = REWARD_SETTINGS["crash_penalty"].field()
+    crash_penalty_decay_steps: int = REWARD_SETTINGS["crash_penalty_decay_steps"].field()
     actor_lr: float = Field(1e-4, gt=0.0, description="Adam learning rate of the actor.")
     critic_lr: float = Field(1e-3, gt=0.0, description="Adam learning rate of the critic.")
     batch_size: int = Field(256, ge=1, le=65536, description="Minibatch size N per update.")
@@ -206,6 +207,9 @@ class AgentConfig(*reversed([f.settings for f in ALGORITHMS.values()]), SharedSe
     def _consistent(self) -> AgentConfig:
         if self.batch_size > self.buffer_size:
             raise ValueError("batch_size must not exceed buffer_size")
+        if self.crash_penalty_decay_steps and not self.crash_penalty:
+            raise ValueError("crash_penalty_decay_steps decays the crash penalty: it needs a "
+                             "crash_penalty above 0")
         if self.algorithm not in ALGORITHMS:
             raise ValueError(
                 f"unknown algorithm {self.algorithm!r}; known: {', '.join(ALGORITHMS)}"

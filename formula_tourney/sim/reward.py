@@ -116,6 +116,15 @@ SETTINGS: tuple[RewardSetting, ...] = (
         "slow), so the critic sees a crash as costlier than the paper's -1 plus the lost "
         "future; 0: the paper's rewards, stored bit for bit as before.",
     ),
+    RewardSetting(
+        "crash_penalty_decay_steps", 0, home="agent", kernel=False, beyond_paper=True,
+        added_in_layout=2, ge=0, le=100_000_000,
+        description="Beyond the paper: the crash penalty falls linearly from crash_penalty at "
+        "the first env step to 0 at this many env steps (the step a transition is stored at), "
+        "so it teaches a run to stay on the track while it learns to lap and is gone once it "
+        "drives at the limit, where a standing penalty keeps it a margin off the walls; 0: "
+        "the penalty stays for the whole run.",
+    ),
 )
 """Every setting and constant of the reward, in the order the kernel's weights are packed."""
 
@@ -236,12 +245,27 @@ class RewardRule:
 
     scale: float = 1.0
     crash_penalty: float = 0.0
+    decay_steps: int = 0
 
     @classmethod
     def of(cls, settings: Any) -> RewardRule:
         """The rule a run's settings declare (an ``AgentConfig``: the keys of the ``agent``
-        home of :data:`SETTINGS`)."""
-        return cls(scale=settings.reward_scale, crash_penalty=settings.crash_penalty)
+        home of :data:`SETTINGS`), at its first env step."""
+        return cls(scale=settings.reward_scale, crash_penalty=settings.crash_penalty,
+                   decay_steps=settings.crash_penalty_decay_steps)
+
+    @property
+    def decays(self) -> bool:
+        """Whether the penalty changes with the env steps (:meth:`at`)."""
+        return bool(self.crash_penalty and self.decay_steps)
+
+    def at(self, env_steps: int) -> RewardRule:
+        """The rule for a transition stored after ``env_steps`` env steps: the penalty falls
+        linearly to 0 at ``decay_steps`` (a rule that does not decay is returned as it is)."""
+        if not self.decays:
+            return self
+        left = max(0.0, 1.0 - env_steps / self.decay_steps)
+        return RewardRule(self.scale, self.crash_penalty * left, self.decay_steps)
 
     def __call__(self, reward: RewardLike, terminated: bool | np.ndarray) -> RewardLike:
         """The stored reward(s) of a step: a float and a bool, or arrays over cars."""

@@ -380,6 +380,8 @@ def _train(
         if cars == 1:
             windows = windows[0][None]
         actions = checked_actions(entrant, entrant.explore(windows, env_steps), cars, action_dim)
+        if reward_rule.decays:
+            collector.reward_rule = reward_rule.at(env_steps)
         finished = collector.step(actions)
         env_steps += collector.stored
         entrant.observe(collector.transitions)
