@@ -121,9 +121,9 @@ SETTINGS: tuple[RewardSetting, ...] = (
         added_in_layout=2, ge=0, le=100_000_000,
         description="Beyond the paper: the crash penalty falls linearly from crash_penalty at "
         "the first env step to 0 at this many env steps (the step a transition is stored at), "
-        "so it teaches a run to stay on the track while it learns to lap and is gone once it "
-        "drives at the limit, where a standing penalty keeps it a margin off the walls; 0: "
-        "the penalty stays for the whole run.",
+        "so that it can help a run learn to lap and then leave the fast laps alone (on the "
+        "oval, 100 000 steps cost the best lap as much as a penalty kept all run: "
+        "docs/results.md); 0: the penalty stays for the whole run.",
     ),
 )
 """Every setting and constant of the reward, in the order the kernel's weights are packed."""
