@@ -157,7 +157,8 @@ def test_a_decaying_crash_penalty_falls_linearly_to_zero_at_its_env_steps() -> N
     """``crash_penalty_decay_steps`` D: the penalty of a transition stored after t env steps
     is P (1 - t / D), 0 from D on; the rule of a run without it never changes."""
     rule = RewardRule(0.5, 300.0, decay_steps=100_000)
-    assert rule.decays and rule.at(0) == rule
+    assert rule.decays and rule.at(0) == RewardRule(0.5, 300.0)  # a step's rule is fixed
+    assert not rule.at(50_000).decays and rule.at(50_000).at(90_000) == rule.at(50_000)
     assert [rule.at(t).crash_penalty for t in (25_000, 50_000, 100_000, 250_000)] \
         == [225.0, 150.0, 0.0, 0.0]
     assert rule.at(50_000)(-1.0, True) == (-1.0 - 150.0) * 0.5

@@ -260,12 +260,13 @@ class RewardRule:
         return bool(self.crash_penalty and self.decay_steps)
 
     def at(self, env_steps: int) -> RewardRule:
-        """The rule for a transition stored after ``env_steps`` env steps: the penalty falls
-        linearly to 0 at ``decay_steps`` (a rule that does not decay is returned as it is)."""
+        """The fixed rule for a transition stored after ``env_steps`` env steps: the penalty
+        falls linearly to 0 at ``decay_steps``. The result does not decay again (a rule that
+        does not decay is returned as it is)."""
         if not self.decays:
             return self
         left = max(0.0, 1.0 - env_steps / self.decay_steps)
-        return RewardRule(self.scale, self.crash_penalty * left, self.decay_steps)
+        return RewardRule(self.scale, self.crash_penalty * left)
 
     def __call__(self, reward: RewardLike, terminated: bool | np.ndarray) -> RewardLike:
         """The stored reward(s) of a step: a float and a bool, or arrays over cars."""

@@ -331,6 +331,7 @@ def _train(
 
     collector: SingleCarCollector | VectorCollector
     reward_rule = RewardRule.of(agent_cfg)
+    penalty_decays = reward_rule.decays  # then each step is stored with the rule of its step
     if cars == 1:
         collector = SingleCarCollector(train_envs, spec.train_tracks, rng, None,
                                        entrant.window, reward_rule)  # fmt: skip
@@ -380,7 +381,7 @@ def _train(
         if cars == 1:
             windows = windows[0][None]
         actions = checked_actions(entrant, entrant.explore(windows, env_steps), cars, action_dim)
-        if reward_rule.decays:
+        if penalty_decays:
             collector.reward_rule = reward_rule.at(env_steps)
         finished = collector.step(actions)
         env_steps += collector.stored
