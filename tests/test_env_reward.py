@@ -9,11 +9,16 @@ import pytest
 from simtracks import stadium
 
 from formula_tourney.agents.variants import AgentConfig
+from formula_tourney.errors import UserInputError
 from formula_tourney.field_marks import added_in_layout, beyond_paper
+from formula_tourney.lines.limit import reference_limit_s, reference_limit_speeds_mps
+from formula_tourney.lines.registry import reference_offsets
+from formula_tourney.lines.speed_profile import speed_profile
 from formula_tourney.sim import kernels as K
 from formula_tourney.sim import reward as R
 from formula_tourney.sim.config import EnvSettings
 from formula_tourney.sim.env import FormulaRacingEnv, FormulaRacingVectorEnv
+from formula_tourney.training.envs import RunEnvs
 from formula_tourney.training.run_spec import build_run_spec
 
 TRACK = stadium()  # 400 m straights, radius 80 m, 12 m wide
@@ -104,6 +109,63 @@ def test_leaving_the_track_at_speed_pays_the_kinetic_energy_wall_penalty(weight:
         assert ends == {25.0: -1.0, 10.0: -1.0}
 
 
+@pytest.mark.parametrize("limit_mps", [12.0, 20.0])
+def test_leaving_the_track_above_the_limits_speed_pays_the_overspeed_penalty(
+        limit_mps: float) -> None:
+    """Steered off the straight from 25 m/s (it leaves at ~16 m/s): the off-track end pays -1
+    less overspeed_crash_weight x (Vx^2 - v_limit^2) where the car's speed is above the limit's
+    at that sample, and the paper's -1 where it is not; the end part carries it."""
+    weight = 0.01
+    speeds = (limit_mps,) * TRACK.n
+    env = FormulaRacingEnv(config={"track": TRACK, "overspeed_crash_weight": weight,
+                                   "limit_speeds_mps": speeds})
+    assert env.unwrapped._b.geom[:, K.G_VLIM].tolist() == list(speeds)
+    env.reset(options={"start_s_m": 100.0, "start_speed_mps": 25.0})
+    term, steps = False, 0
+    while not term and steps < 100:
+        obs, r, term, _, info = env.step(np.array([1.0, 0.0, 0.0], np.float32))
+        steps += 1
+    assert info["termination"] == "off_track"
+    vx = obs[K.OBS_VX] * K.SPEED_SCALE_MPS
+    assert 14.0 < vx < 18.0
+    if limit_mps < vx:
+        assert r == pytest.approx(-1.0 - weight * (vx * vx - limit_mps**2), rel=1e-6)
+        assert r < -1.5
+    else:
+        assert r == -1.0
+    assert dict(info["rewards"]) == dict.fromkeys(R.PARTS, 0.0) | {"end": r}
+
+
+def test_the_overspeed_penalty_needs_one_limit_speed_per_track_sample() -> None:
+    with pytest.raises(UserInputError, match="overspeed_crash_weight needs limit_speeds_mps"):
+        FormulaRacingEnv(config={"track": TRACK, "overspeed_crash_weight": 0.1})
+    with pytest.raises(UserInputError, match=f"3 values for track .* has {TRACK.n} samples"):
+        FormulaRacingEnv(config={"track": TRACK, "overspeed_crash_weight": 0.1,
+                                 "limit_speeds_mps": (20.0, 20.0, 20.0)})
+
+
+def test_a_run_fills_the_limit_speeds_from_the_reference_limits_profile() -> None:
+    """A run with the overspeed term gives its training and test envs the QSS speeds of the
+    reference limit's lap, whose time is the reference limit (33.84 s on the oval); a run
+    without it gives none. The oval's slowest point is far faster than technical's hairpins."""
+    spec = build_run_spec(variant="WIN1", train_tracks=["oval"],
+                          test_tracks=["oval", "technical"], preset="best",
+                          env_overrides={"overspeed_crash_weight": 0.3})
+    envs = RunEnvs(spec)
+    car = spec.env.car_params()
+    oval = envs.config("oval", test=False).limit_speeds_mps
+    assert np.array_equal(oval, reference_limit_speeds_mps(envs.tracks["oval"], car))
+    assert envs.config("oval", test=True).limit_speeds_mps == oval
+    technical = envs.config("technical", test=True).limit_speeds_mps
+    assert min(oval) > 55.0 and min(technical) < 25.0
+    profile = speed_profile(envs.tracks["oval"],
+                            reference_offsets(envs.tracks["oval"], "mincurv", car), car)
+    assert np.array_equal(profile.speed_mps, oval)
+    assert reference_limit_s(envs.tracks["oval"], car) == pytest.approx(33.84, abs=0.005)
+    plain = RunEnvs(build_run_spec(variant="WIN1", train_tracks=["oval"], preset="best"))
+    assert plain.config("oval", test=False).limit_speeds_mps == ()
+
+
 def test_vector_parts_are_arrays_over_cars_and_sum_to_the_rewards() -> None:
     """Six cars with random actions, autoresets included: each car's parts sum to its reward
     (1e-9), and a car reset this step is paid nothing."""
@@ -136,7 +198,8 @@ def test_the_kernel_packing_comes_from_the_models_table() -> None:
     assert K.O_REWARD_IN + len(R.INPUT_NAMES) == K.N_OUT
     slots = {"track_pos_weight": K.C_TRACKPOS_W, "progress_reward": K.C_PROGRESS,
              "damage_weight": K.C_DMG_W, "slow_penalty": K.C_SLOW_PEN,
-             "early_end_reward": K.C_END_REWARD, "wall_energy_weight": K.C_WALL_E}
+             "early_end_reward": K.C_END_REWARD, "wall_energy_weight": K.C_WALL_E,
+             "overspeed_crash_weight": K.C_OVERSPEED}
     assert sorted(slots) == sorted(R.KERNEL_NAMES)
     assert sorted(slots.values()) == list(range(K.C_REWARD, K.N_CFG))
     others = [v for k, v in vars(K).items() if k.startswith("C_") and k != "C_REWARD"
@@ -149,7 +212,8 @@ def test_the_kernel_packing_comes_from_the_models_table() -> None:
     block = env._b.cfg[K.C_REWARD:]
     assert dict(zip(R.KERNEL_NAMES, block.tolist(), strict=True)) == {
         "track_pos_weight": 0.4, "progress_reward": 1.0, "damage_weight": 0.5,
-        "slow_penalty": 3.0, "early_end_reward": -1.0, "wall_energy_weight": 0.0}
+        "slow_penalty": 3.0, "early_end_reward": -1.0, "wall_energy_weight": 0.0,
+        "overspeed_crash_weight": 0.0}
 
 
 def test_each_setting_is_declared_once_in_the_table() -> None:
@@ -166,8 +230,8 @@ def test_each_setting_is_declared_once_in_the_table() -> None:
         assert added_in_layout(field) == s.added_in_layout
         assert beyond_paper(field) == s.beyond_paper
     assert [s.name for s in R.SETTINGS if s.beyond_paper] == [
-        "track_pos_weight", "progress_reward", "wall_energy_weight", "crash_penalty",
-        "crash_penalty_decay_steps"]
+        "track_pos_weight", "progress_reward", "wall_energy_weight", "overspeed_crash_weight",
+        "crash_penalty", "crash_penalty_decay_steps"]
     with pytest.raises(ValueError, match="less than or equal to 10"):
         EnvSettings(track_pos_weight=11.0)
     with pytest.raises(ValueError, match="greater than 0"):

@@ -7,8 +7,10 @@ neither of those imports the other.
 
 from __future__ import annotations
 
+import numpy as np
+
 from formula_tourney.lines.registry import reference_offsets
-from formula_tourney.lines.speed_profile import lap_time_s
+from formula_tourney.lines.speed_profile import lap_time_s, speed_profile
 from formula_tourney.sim.car_params import CarParams
 from formula_tourney.sim.track import Track
 
@@ -21,3 +23,13 @@ def reference_limit_s(track: Track, car: CarParams | None = None,
     car = car or CarParams()
     return lap_time_s(track, reference_offsets(track, "mincurv", car), car,
                       grip_scale=grip_scale)
+
+
+def reference_limit_speeds_mps(track: Track, car: CarParams | None = None,
+                               grip_scale: float = 1.0) -> np.ndarray:
+    """The reference limit's QSS speed (m/s) at each track sample: the speeds of the lap
+    :func:`reference_limit_s` times, which the reward's overspeed crash term compares a car's
+    speed with where it leaves the track."""
+    car = car or CarParams()
+    return speed_profile(track, reference_offsets(track, "mincurv", car), car,
+                         grip_scale=grip_scale).speed_mps

@@ -71,7 +71,7 @@ GripScale = Annotated[Real, Field(ge=GRIP_MIN, le=GRIP_MAX)]
 """A friction multiplier (ice ~0.3, wet ~0.6-0.8, dry 1): the one range every grip key shares."""
 
 RUN_OWNED_KEYS: tuple[str, ...] = ("track", "reference_line", "lac", "max_steps", "random_start",
-                                   "curriculum_starts_m")  # fmt: skip
+                                   "curriculum_starts_m", "limit_speeds_mps")  # fmt: skip
 """Env keys a run specification sets from its own fields (never from env overrides)."""
 
 
@@ -125,6 +125,7 @@ class EnvSettings(BaseModel):
     track_pos_weight: Real = R.BY_NAME["track_pos_weight"].field()
     progress_reward: Boolean = R.BY_NAME["progress_reward"].field()
     wall_energy_weight: Real = R.BY_NAME["wall_energy_weight"].field()
+    overspeed_crash_weight: Real = R.BY_NAME["overspeed_crash_weight"].field()
     start_speed_mps: Real = Field(
         0.0, ge=0.0, le=100.0, description="Speed at reset along the reference line."
     )
@@ -248,6 +249,22 @@ class EnvConfig(EnvSettings):
         "starts at, drawn uniformly among them; a training run fills them for its "
         "start_curriculum (training.curriculum). Empty: none.",
     )
+
+    limit_speeds_mps: tuple[Real, ...] = Field(
+        (),
+        description="The reference limit's QSS speed (m/s) at each track sample, which the "
+        "reward's overspeed_crash_weight term reads; a training run fills it "
+        "(training.envs). Empty: none.",
+    )
+
+    @model_validator(mode="after")
+    def _overspeed_has_limit_speeds(self) -> EnvConfig:
+        if self.overspeed_crash_weight > 0.0 and not self.limit_speeds_mps:
+            raise ValueError(
+                "overspeed_crash_weight needs limit_speeds_mps, the limit's speed at each track "
+                "sample (a training run fills them: training.envs.RunEnvs)"
+            )
+        return self
 
     @model_validator(mode="after")
     def _curriculum_has_starts(self) -> EnvConfig:

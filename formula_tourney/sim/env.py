@@ -111,6 +111,12 @@ class _Batch:
         c[K.C_LENGTH] = self.track.length_m
         self.geom = track_geometry(self.track, self.reference, cfg.grip_scale,
                                    self.car.mu / self.car.mu_grass)
+        if cfg.limit_speeds_mps:  # beyond the paper: the overspeed crash term's limit speeds
+            if len(cfg.limit_speeds_mps) != self.track.n:
+                raise UserInputError(
+                    f"config key 'limit_speeds_mps': {len(cfg.limit_speeds_mps)} values for "
+                    f"track {self.track.name!r}, which has {self.track.n} samples")
+            self.geom[:, K.G_VLIM] = cfg.limit_speeds_mps
         # Per-episode grip (docs/sim.md "Surfaces"): grip_scale lives in the geometry block (1
         # when a range is drawn); a drawn grip or a drying track is each car's ST_GRIP_DELTA.
         self.base_grip = cfg.grip_scale

@@ -164,7 +164,10 @@ G_MU_ROAD = 20
 G_MU_SIDE = 21
 G_RR_ROAD = 22
 G_RR_SIDE = 23
-N_GEOM = 24
+# Beyond the paper: the reference limit's QSS speed (m/s) at each sample, read by the reward's
+# overspeed crash term only (0 where no training run filled it: the term's weight is then 0).
+G_VLIM = 24
+N_GEOM = 25
 RAY_BLOCK = 8
 
 # --- surface (elevation and banking) columns, per track sample: ``elev[i, E_*]`` ---------------
@@ -204,6 +207,8 @@ C_DMG_W = C_REWARD + R.kernel_slot("damage_weight")
 C_SLOW_PEN = C_REWARD + R.kernel_slot("slow_penalty")
 C_END_REWARD = C_REWARD + R.kernel_slot("early_end_reward")  # an off-track or backwards end
 C_WALL_E = C_REWARD + R.kernel_slot("wall_energy_weight")  # off track: less this x Vx^2
+C_OVERSPEED = C_REWARD + R.kernel_slot("overspeed_crash_weight")  # off track: less this x
+# (Vx^2 - G_VLIM^2) where positive
 N_CFG = C_REWARD + len(R.KERNEL_NAMES)
 
 # --- per-step outputs --------------------------------------------------------------------------
@@ -1109,6 +1114,11 @@ def score_step(st: np.ndarray, o: np.ndarray, obs_row: np.ndarray, dist0: float,
         reward = cfg[C_END_REWARD]
         if term == TERM_OFF_TRACK and cfg[C_WALL_E] > 0.0:  # the wall's price grows with Vx^2
             reward -= cfg[C_WALL_E] * vx * vx
+        if term == TERM_OFF_TRACK and cfg[C_OVERSPEED] > 0.0:  # only speed above the limit's
+            v_lim = geom[i, G_VLIM]
+            excess = vx * vx - v_lim * v_lim
+            if excess > 0.0:
+                reward -= cfg[C_OVERSPEED] * excess
     elif term == TERM_SLOW:
         reward = -cfg[C_SLOW_PEN]
     o[O_REWARD] = reward

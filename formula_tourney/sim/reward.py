@@ -103,6 +103,18 @@ SETTINGS: tuple[RewardSetting, ...] = (
         "-1, bit for bit.",
     ),
     RewardSetting(
+        "overspeed_crash_weight", 0.0, home="env", kernel=True, beyond_paper=True,
+        added_in_layout=2, ge=0.0, le=10.0,
+        description="Beyond the paper: an episode that ends off track also pays minus this "
+        "times the kinetic energy per unit mass above the reference limit's, (Vx^2 - "
+        "v_limit^2) (m^2/s^2) when positive, where v_limit is the QSS speed of the "
+        "minimum-curvature line at the sample where the car left. Unlike a flat crash penalty "
+        "or the wall energy term, a car that leaves the track at or below the limit's speed "
+        "(a slip at the limit, a slow mistake) pays only the paper's -1; arriving at a corner "
+        "far too fast costs in proportion. A training run fills v_limit per track sample "
+        "(limit_speeds_mps); 0: the paper's -1, bit for bit.",
+    ),
+    RewardSetting(
         "reward_scale", 0.02, home="agent", kernel=False, gt=0.0,
         description="Rewards are multiplied by this before they enter the replay buffer. The "
         "paper's reward is Vx in m/s per step (up to ~80), so Q reaches thousands; scaled, the "
@@ -149,8 +161,8 @@ PARTS: dict[str, str] = {
     "track_pos": "-track_pos_weight Vx |trackPos|: the cost of leaving the reference line.",
     "damage": "-damage_weight times the damage taken in the step.",
     "end": "On a step that ends the episode early, its reward (early_end_reward off track or "
-    "backwards, less wall_energy_weight Vx^2 off track; -slow_penalty slow), which replaces "
-    "every other part (they read 0).",
+    "backwards, less wall_energy_weight Vx^2 and overspeed_crash_weight max(0, Vx^2 - "
+    "v_limit^2) off track; -slow_penalty slow), which replaces every other part (they read 0).",
 }
 """The keys of ``info["rewards"]`` and what each pays; they sum to the step's reward."""
 

@@ -18,7 +18,7 @@ from gymnasium.wrappers import OrderEnforcing
 from formula_tourney.bots.line_offsets import reference_offsets
 from formula_tourney.bots.traffic_env import TrafficEnv
 from formula_tourney.errors import UserInputError
-from formula_tourney.lines.limit import reference_limit_s
+from formula_tourney.lines.limit import reference_limit_s, reference_limit_speeds_mps
 from formula_tourney.sim.catalog import load_track
 from formula_tourney.sim.config import EnvConfig
 from formula_tourney.sim.track import Track
@@ -55,6 +55,7 @@ class RunEnvs:
             name: reference_line(track, self.reference, spec) for name, track in self.tracks.items()
         }
         self._limits: dict[tuple[str, float], float] = {}
+        self._limit_speeds: dict[tuple[str, float], tuple[float, ...]] = {}
 
     def config(self, track: str, *, test: bool, max_steps: int | None = None,
                grip_scale: float | None = None) -> EnvConfig:
@@ -71,6 +72,8 @@ class RunEnvs:
                        grip_scale=self.spec.env.grip_scale if grip_scale is None else grip_scale)
         elif self.spec.env.start_curriculum == "braking":
             env["curriculum_starts_m"] = self.curriculum_starts(track)
+        if self.spec.env.overspeed_crash_weight > 0.0:
+            env["limit_speeds_mps"] = self.limit_speeds(track, env["grip_scale"])
         # parse, not construct: a grip given here (``eval --grip``) is checked like any env key
         return EnvConfig.parse({
             **env,
@@ -85,6 +88,16 @@ class RunEnvs:
         line = self.lines[track]
         offsets = 0.0 if isinstance(line, str) else line
         return braking_starts(self.tracks[track], offsets, self.spec.env.car_params())
+
+    def limit_speeds(self, track: str, grip_scale: float) -> tuple[float, ...]:
+        """The reference limit's speed at each sample of ``track`` at ``grip_scale``, which the
+        reward's overspeed crash term reads; computed once per track and grip."""
+        key = (track, float(grip_scale))
+        if key not in self._limit_speeds:
+            car = self.spec.env.car_params()
+            speeds = reference_limit_speeds_mps(self.tracks[track], car, grip_scale)
+            self._limit_speeds[key] = tuple(float(v) for v in speeds)
+        return self._limit_speeds[key]
 
     def test_limit_s(self, track: str, grip_scale: float) -> float:
         """The reference limit of ``track`` at ``grip_scale`` for the tests table, computed once

@@ -63,6 +63,7 @@ RUN_OWNED_HINTS: dict[str, str] = {
     "max_steps": "max_steps (training) and test_max_steps (tests)",
     "random_start": "random_start",
     "curriculum_starts_m": "start_curriculum (the run finds them on its reference line)",
+    "limit_speeds_mps": "overspeed_crash_weight (the run finds them on the reference limit)",
 }
 """Where to set each env key that a run owns, for the error when an override names one."""
 

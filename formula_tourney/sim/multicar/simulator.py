@@ -29,7 +29,9 @@ from formula_tourney.sim.track import Track
 OPPONENT_NAMES: tuple[str, ...] = tuple(f"opp_{-180 + 10 * k}" for k in range(RK.N_OPP))
 """Names of the opponent block: sector ``opp_<a>`` covers bearings [a, a + 10) deg, left > 0."""
 
-_REF_COLS = (K.G_REF_OFF, K.G_REF_H, K.G_REF_K)
+# The geometry columns a car's own config fills (its reference line, and the limit speeds its
+# reward's overspeed term reads): cars may differ in them, each distinct set is one layer.
+_CAR_COLS = (K.G_REF_OFF, K.G_REF_H, K.G_REF_K, K.G_VLIM)
 _SHARED_CFG = (K.C_DT, K.C_NSUB, K.C_GRASS_W, K.C_LENGTH, K.C_ELEV)
 
 
@@ -85,7 +87,7 @@ class RaceSim:
                                      "races yet (a race runs at one grip: set grip_scale)")
         batches = [_Batch(1, cfg.model_copy(update={"track": track})) for cfg in parsed]
         b0 = batches[0]
-        track_cols = [k for k in range(K.N_GEOM) if k not in _REF_COLS]
+        track_cols = [k for k in range(K.N_GEOM) if k not in _CAR_COLS]
         for i, b in enumerate(batches[1:], start=2):
             what = None
             if not np.array_equal(b.params, b0.params) or not np.array_equal(b.torque,
@@ -109,12 +111,12 @@ class RaceSim:
         self.params, self.torque, self.gears = b0.params, b0.torque, b0.gears
         self.elev = b0.elev
         self.lac_d = b0.lac_d
-        # One geometry layer per distinct reference line.
+        # One geometry layer per distinct reference line (and limit speeds).
         layers: list[np.ndarray] = []
         keys: list[bytes] = []
         ref_of_car = []
         for b in batches:
-            key = b.geom[:, list(_REF_COLS)].tobytes()
+            key = b.geom[:, list(_CAR_COLS)].tobytes()
             if key not in keys:
                 keys.append(key)
                 layers.append(b.geom)
