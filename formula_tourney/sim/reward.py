@@ -106,7 +106,7 @@ SETTINGS: tuple[RewardSetting, ...] = (
         "overspeed_crash_weight", 0.0, home="env", kernel=True, beyond_paper=True,
         added_in_layout=2, ge=0.0, le=10.0,
         description="Beyond the paper: an episode that ends off track also pays minus this "
-        "times the kinetic energy per unit mass above the reference limit's, (Vx^2 - "
+        "times twice the kinetic energy per kilogram above the reference limit's, (Vx^2 - "
         "v_limit^2) (m^2/s^2) when positive, where v_limit is the QSS speed of the "
         "minimum-curvature line at the sample where the car left. Unlike a flat crash penalty "
         "or the wall energy term, a car that leaves the track at or below the limit's speed "
