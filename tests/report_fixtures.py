@@ -343,3 +343,48 @@ def build_empty_tournament(results_dir: Path, name: str = "empty-cup") -> Path:
     con.commit()
     con.close()
     return root
+
+
+GENERATED_LAPS_S = {  # seed -> episode -> track -> zero-damage lap (None: no lap)
+    0: {100: {"oval": 30.0}, 200: {"oval": 29.0, "flowing": 80.0},
+        300: {"oval": 28.0, "flowing": 79.0}},
+    1: {100: {}, 200: {}, 300: {}},
+}
+"""The generated-tracks fixture's test laps: seed 0 laps two of the three unseen tracks from
+episode 200 on (faster at 300), seed 1 never laps."""
+
+
+def build_generated_tournament(results_dir: Path, name: str = "general-cup") -> Path:
+    """A tournament whose runs train on generated tracks they are never tested on (a general
+    driver): one part, WIN1, two seeds, tested on oval, technical and flowing from one start."""
+    root = Path(results_dir) / name
+    root.mkdir(parents=True, exist_ok=True)
+    tracks = ["oval", "technical", "flowing"]
+    jobs = [_job("general", "win1", "win1", "win", seed, "centre", True, ["gen-0", "gen-1"],
+                 tracks) for seed in (0, 1)]
+    for job in jobs:
+        folder = JobFolder(root / job["path"])
+        folder.write_config(run_spec(job))
+        rows = []
+        for episode, laps in GENERATED_LAPS_S[job["seed"]].items():
+            for track in tracks:
+                lap = laps.get(track)
+                rows.append({
+                    "episode": episode, "env_steps": episode * 150, "track": track,
+                    "start_s_m": 0.0, "finished": lap is not None,
+                    "best_lap_s": NAN if lap is None else lap, "laps": int(lap is not None),
+                    "damage": 0.0, "reward": 100.0, "steps": 600,
+                    "termination": "max_steps" if lap is not None else "off_track",
+                    "checkpoint": f"checkpoints/ep-{episode}.pt"})
+        tests = pd.DataFrame(rows)
+        folder.write_tables(_episode_rows({**job, "_tests": ["oval"]}).to_dict("records"),
+                            rows, _laps_rows(tests))
+        folder.write_summary({"best_lap_s": None, "episodes": 300, "finished": False})
+    con = sqlite3.connect(root / L.INDEX_FILE)
+    con.executescript(L.INDEX_SCHEMA)
+    _insert_jobs(con, [_train_row(j) for j in jobs])
+    con.execute("INSERT INTO parts (part, study, position, status, entrants, promoted) "
+                "VALUES ('general', 'general', 0, 'done', '[\"win1\"]', '[]')")
+    con.commit()
+    con.close()
+    return root

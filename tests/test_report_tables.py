@@ -10,6 +10,7 @@ import pytest
 from report_fixtures import (
     LIMIT_S,
     build_empty_tournament,
+    build_generated_tournament,
     build_tournament,
     template_lap,
 )
@@ -277,3 +278,27 @@ def test_runs_beyond_the_paper_are_labelled_in_every_table(tmp_path: Path) -> No
     assert label in [r["label"] for r in tables["table1"].rows]
     assert "win1" not in [r["label"] for r in tables["table1"].rows]
     assert _record(tables["table1"], "part1: oval MOT", label)["bLT"] == pytest.approx(27.1)
+
+
+def test_runs_trained_on_tracks_they_are_never_tested_on(tmp_path: Path) -> None:
+    """A general driver (trained on generated tracks, tested only on unseen ones): Tables 1 and
+    2 have no group for the generated tracks, and Table 3's general model is the checkpoint
+    with clean laps on the most unseen tracks, the least sum of laps breaking the tie (seed 0's
+    episode 300: oval 28.0, flowing 79.0; technical never)."""
+    data = load_tournament(build_generated_tournament(tmp_path))
+    tables = {t.key: t for t in build_tables(Context.build(data))}
+    assert tables["table1"].groups == []
+    assert tables["table1"].notes == [
+        "no job is tested on a track it trains on (unseen tracks: Table 3)"]
+    assert tables["table2"].groups == []
+    t3 = tables["table3"]
+    assert t3.metrics["General"] == ["oval", "technical", "flowing"]
+    win1 = _row(t3, "win1 MOT + LAC")
+    assert win1["values"][("General", "oval")] == 28.0
+    assert win1["values"][("General", "flowing")] == 79.0
+    assert win1["text"][("General", "technical")] == "DNF"
+    assert win1["text"][("Best", "bLT")] == paper_tables.NOT_TESTED
+    assert ("general model of win1 MOT + LAC: general/win1/seed-0 after 300 episodes, clean "
+            "laps on 2 of 3 unseen tracks") in t3.notes
+    assert ("win1 MOT + LAC, per run: 2 and 0 of 3 unseen tracks lapped cleanly by one "
+            "checkpoint") in t3.notes

@@ -130,9 +130,16 @@ def test_general_model_is_best_on_train_track_among_checkpoints_finishing_unseen
     assert pick == {"job_id": "p/E/seed-0", "episode": 200, "train_track": "technical",
                     "train_lap_s": 68.0,
                     "laps": {"technical": 68.0, "oval": 27.5, "flowing": 80.0},
-                    "checkpoint": "checkpoints/ep-200.pt"}
+                    "checkpoint": "checkpoints/ep-200.pt", "unseen_lapped": 2, "unseen": 2}
     strict = general_pick(tmp_path, "j", "technical", tracks, 1.0)
     assert strict is not None and strict["episode"] == 300
+    # a run trained on generated tracks, never tested on them: the checkpoint with clean laps
+    # on the most unseen tracks (episodes 200 and 300 lap all three), the least sum breaking
+    # the tie (300: 70 + 27 + 79 = 176 s against 68 + 27.5 + 80 = 175.5 s at 200)
+    generated = general_pick(tmp_path, "j", "gen-0", tracks, 0.5)
+    assert generated is not None and generated["episode"] == 200
+    assert math.isnan(generated["train_lap_s"]) and generated["unseen_lapped"] == 3
+    assert generated["laps"] == {"technical": 68.0, "oval": 27.5, "flowing": 80.0}
     oval_pick = general_pick(tmp_path, "j", "oval", ["oval", "flowing"], 1.0)
     assert oval_pick is not None and oval_pick["episode"] == 300
     assert general_pick(tmp_path / "missing", "j", "oval", ["oval"], 0.5) is None

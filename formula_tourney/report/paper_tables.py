@@ -341,13 +341,16 @@ def table1(ctx: Context) -> ReportTable:
         part_jobs = ctx.jobs.loc[ctx.jobs["part"] == part]
         for _, job in part_jobs.iterrows():
             for track in job["train_tracks"]:
+                if track not in job["tested_tracks"]:
+                    continue  # trained on it, never tested on it (generated tracks): Table 3
                 label = group_label(part, track, job["reference"], bool(job["lac"]))
                 grp = groups.setdefault(label, {"part": part, "track": track,
                                                 "reference": job["reference"],
                                                 "lac": bool(job["lac"]), "jobs": []})
                 grp["jobs"].append(str(job["job_id"]))
     if not groups:
-        table.notes.append("no jobs to report yet")
+        table.notes.append("no jobs to report yet" if ctx.jobs.empty else
+                           "no job is tested on a track it trains on (unseen tracks: Table 3)")
         return table
     table.groups = list(groups)
     table.metrics = {g: list(TABLE1_METRICS) for g in table.groups}
@@ -410,8 +413,14 @@ def table2(ctx: Context) -> ReportTable:
         label = entrant_label(job["variant"], job["reference"], bool(job["lac"]),
                               ctx.data.beyond_paper.get(str(job["job_id"])) or [])
         cfg_jobs.setdefault(label, []).append(str(job["job_id"]))
-    tracks = list(dict.fromkeys(t for tl in jobs.loc[jobs["variant"].isin(lac_variants),
-                                                    "train_tracks"] for t in tl))
+    lac_jobs = jobs.loc[jobs["variant"].isin(lac_variants)]
+    tracks = list(dict.fromkeys(t for train, tested in zip(lac_jobs["train_tracks"],
+                                                           lac_jobs["tested_tracks"], strict=True)
+                                for t in train if t in tested))  # fmt: skip
+    if not tracks:
+        table.notes.append("no LAC entrant is tested on a track it trains on (unseen tracks: "
+                           "Table 3)")
+        return table
     shown = ["bLT", "gap"]
     table.groups = tracks
     table.metrics = {t: list(shown) for t in tracks}
@@ -456,11 +465,33 @@ def stored_general_model(general: pd.DataFrame, models: pd.DataFrame,
     chosen = general.loc[general["chosen"] & general["job_id"].astype(str).isin(job_ids)]
     if chosen.empty:
         return None
-    pick = chosen.sort_values("train_lap_s", kind="stable").iloc[0]
+    ranks = [metrics.general_rank(_lap_or_nan(r["train_lap_s"]), r["laps"] or {},
+                                  str(r["train_track"])) for _, r in chosen.iterrows()]  # fmt: skip
+    pick = chosen.iloc[min(range(len(ranks)), key=ranks.__getitem__)]
     job_id, episode = str(pick["job_id"]), float(pick["episode"])
     mine = models.loc[(models["job_id"] == job_id) & (models["episode"] == episode)]
     laps = {t: float(mine.loc[mine["track"] == t, "clean_lap_s"].min()) for t in tracks}
-    return {"job_id": job_id, "episode": episode, "laps": laps, "chosen_by": "tournament"}
+    unseen = [t for t in tracks if t != str(pick["train_track"])]
+    return {"job_id": job_id, "episode": episode, "laps": laps, "chosen_by": "tournament",
+            "unseen_lapped": sum(math.isfinite(laps[t]) for t in unseen), "unseen": len(unseen)}
+
+
+def _unseen_lapped_per_run(ctx: Context, cfg: dict[str, Any]) -> str:
+    """For runs never tested on their train tracks: the most unseen tracks one checkpoint of
+    each run lapped cleanly (its general model's), e.g. "2, 3, 4 and 0 of 6 unseen tracks"."""
+    counts = []
+    for job_id in cfg["jobs"]:
+        models = ctx.models.loc[ctx.models["job_id"] == job_id]
+        pick = metrics.general_model(models, cfg["train"], cfg["tracks"], 0.0)
+        counts.append(str(pick["unseen_lapped"] if pick is not None else 0))
+    listed = counts[0] if len(counts) == 1 else f"{', '.join(counts[:-1])} and {counts[-1]}"
+    return (f"{listed} of {len([t for t in cfg['tracks'] if t != cfg['train']])} unseen tracks "
+            "lapped cleanly by one checkpoint")
+
+
+def _lap_or_nan(value: Any) -> float:
+    """A stored lap (None where SQLite held NULL for NaN) as a float."""
+    return math.nan if value is None or pd.isna(value) else float(value)
 
 
 def general_model_of(ctx: Context, job_ids: list[str], train_track: str, tracks: list[str],
@@ -484,8 +515,9 @@ def table3(ctx: Context) -> ReportTable:
         caption=(
             "Fastest models (bLT, aLT on the train track) compared with the general model (the "
             "best clean train-track lap among checkpoints that also finish a lap from the part's "
-            "share of starts on every unseen track) on every test track, s. DNF: the general "
-            "model has no clean lap there."
+            "share of starts on every unseen track; for a run never tested on its train tracks, "
+            "the checkpoint with clean laps on the most unseen tracks) on every test track, s. "
+            "DNF: the general model has no clean lap there."
         ),
         groups=[], metrics={},
     )
@@ -506,7 +538,10 @@ def table3(ctx: Context) -> ReportTable:
         cfg["jobs"].append(str(job["job_id"]))
         cfg["tracks"].extend(t for t in job["tested_tracks"] if t not in cfg["tracks"])
     trains = list(dict.fromkeys(c["train"] for c in cfgs.values()))
-    all_tracks = list(dict.fromkeys([*trains, *(t for c in cfgs.values() for t in c["tracks"])]))
+    # a train track no job was tested on (generated tracks) has no column: nothing to show
+    tested = {t for c in cfgs.values() for t in c["tracks"]}
+    all_tracks = list(dict.fromkeys([*(t for t in trains if t in tested),
+                                     *(t for c in cfgs.values() for t in c["tracks"])]))
     best_group = "Best" if len(trains) == 1 else "Best (train track)"
     table.groups = [best_group, "General"]
     table.metrics = {best_group: ["bLT", "aLT", "gap"], "General": list(all_tracks)}
@@ -516,6 +551,8 @@ def table3(ctx: Context) -> ReportTable:
         limit = ctx.limits.get(cfg["train"], math.nan)
         st = entry_stats(ctx.runs_of(cfg["jobs"], cfg["train"]), len(cfg["jobs"]), limit)
         fill_entry(row, best_group, st, ["bLT", "aLT", "gap"])
+        if cfg["train"] not in cfg["tracks"]:  # trained on tracks it is never tested on
+            row["text"].update({(best_group, m): NOT_TESTED for m in ("bLT", "aLT", "gap")})
         tested = not ctx.models.loc[ctx.models["job_id"].isin(cfg["jobs"])].empty
         rate = ctx.data.unseen_finish_rate(
             ctx.jobs.loc[ctx.jobs["job_id"].isin(cfg["jobs"]), "part"].astype(str))
@@ -536,9 +573,15 @@ def table3(ctx: Context) -> ReportTable:
         if which is not None:
             table.notes.append(
                 f"general model of {label}: {which['job_id']} after {which['episode']:.0f} "
-                "episodes" + (" (the tournament's choice)"
-                              if which["chosen_by"] == "tournament" else "")
+                f"episodes, clean laps on {which['unseen_lapped']} of {which['unseen']} unseen "
+                "tracks" + (" (the tournament's choice)"
+                            if which["chosen_by"] == "tournament" else "")
             )
+        elif tested and cfg["train"] not in cfg["tracks"]:
+            table.notes.append(f"{label}: no general model (no checkpoint laps any unseen "
+                               "track cleanly)")
+        if tested and cfg["train"] not in cfg["tracks"]:
+            table.notes.append(f"{label}, per run: {_unseen_lapped_per_run(ctx, cfg)}")
         elif tested:
             table.notes.append(
                 f"{label}: no general model (no checkpoint with a clean {cfg['train']} lap "

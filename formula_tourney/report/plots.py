@@ -534,7 +534,10 @@ def make_figures(ctx: Context, tables_: list[ReportTable],
         sub = models.loc[models["job_id"].isin(rec["jobs"])]
         if sub.empty:
             continue
-        tracks = list(dict.fromkeys([rec["train_track"], *sub["track"].astype(str)]))
+        tested = list(dict.fromkeys(sub["track"].astype(str)))
+        # the train track first where the runs were tested on it (generated tracks are not)
+        tracks = list(dict.fromkeys([rec["train_track"], *tested])) if (
+            rec["train_track"] in tested) else tested
         general = rec.get("general")
         name = f"generalisation-{slug(label)}"
         figures[name] = plot_generalisation(sub, tracks, f"{label}: lap time on each track",

@@ -10,13 +10,16 @@
 - The *gap* of a lap is how much slower than the track's reference limit it is, in percent.
 - The *general model* of a run (the paper's Table 3): among its models that have a clean lap on
   the train track and finish a lap from at least ``min_unseen_finish_rate`` of the starts on
-  every unseen test track, the one with the fastest train-track lap.
+  every unseen test track, the one with the fastest train-track lap. A run that is never tested
+  on its train track (one trained on many generated tracks, tested only on tracks it never
+  saw) has no train-track lap to rank by: its general model is the one with a clean lap on the
+  most unseen test tracks, the least sum of those laps breaking a tie (:func:`general_rank`).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -139,6 +142,18 @@ def run_metrics(tests: pd.DataFrame, train_track: str) -> dict[str, Any]:
             "distance_m": float(row["distance_m"])}
 
 
+def general_rank(train_lap_s: float | None, laps: Mapping[str, float | None],
+                 train_track: str) -> tuple[float, float]:
+    """Sort key of a general model candidate, lowest first: its train-track lap where it has
+    one (every candidate of such a run meets the unseen-track rule, so the lap decides); else
+    minus the unseen tracks it laps cleanly, then the sum of those laps (s)."""
+    if train_lap_s is not None and math.isfinite(train_lap_s):
+        return 0.0, float(train_lap_s)
+    clean = [float(v) for t, v in laps.items()
+             if t != train_track and v is not None and math.isfinite(v)]  # fmt: skip
+    return -float(len(clean)), float(sum(clean))
+
+
 def general_model(
     models: pd.DataFrame,
     train_track: str,
@@ -147,27 +162,36 @@ def general_model(
 ) -> dict[str, Any] | None:
     """The general model among ``models`` (one run's or several runs'), or None.
 
-    Returns job_id, episode, checkpoint, the train-track lap and the clean lap per test track.
+    Returns job_id, episode, checkpoint, the train-track lap (nan when the run was never tested
+    on its train track), the clean lap per test track and how many unseen tracks it lapped
+    cleanly (``unseen_lapped``, of ``unseen``).
     """
     if models.empty:
         return None
     unseen = [t for t in test_tracks if t != train_track]
+    train_tested = bool((models["track"].astype(str) == train_track).any())
     best: dict[str, Any] | None = None
     for (job_id, episode), rows in models.groupby(["job_id", "episode"], sort=True):
         by_track = rows.set_index("track")
-        if train_track not in by_track.index:
-            continue
-        lap_s = float(by_track.loc[train_track, "clean_lap_s"])
-        if not math.isfinite(lap_s):
-            continue
-        if any(t not in by_track.index
-               or float(by_track.loc[t, "finish_rate"]) < min_unseen_finish_rate
-               for t in unseen):  # fmt: skip
-            continue
-        if best is None or lap_s < best["train_lap_s"]:
-            laps = {t: (float(by_track.loc[t, "clean_lap_s"]) if t in by_track.index
-                        else math.nan) for t in test_tracks}  # fmt: skip
+        laps = {t: (float(by_track.loc[t, "clean_lap_s"]) if t in by_track.index
+                    else math.nan) for t in test_tracks}  # fmt: skip
+        lapped = sum(math.isfinite(laps[t]) for t in unseen)
+        if train_tested:
+            lap_s = (float(by_track.loc[train_track, "clean_lap_s"])
+                     if train_track in by_track.index else math.nan)
+            if not math.isfinite(lap_s) or any(
+                    t not in by_track.index
+                    or float(by_track.loc[t, "finish_rate"]) < min_unseen_finish_rate
+                    for t in unseen):  # fmt: skip
+                continue
+        else:
+            lap_s = math.nan
+            if not lapped:
+                continue
+        rank = general_rank(lap_s, laps, train_track)
+        if best is None or rank < general_rank(best["train_lap_s"], best["laps"], train_track):
             marks = [str(c) for c in rows["checkpoint"] if isinstance(c, str) and c]
             best = {"job_id": str(job_id), "episode": int(episode), "train_track": train_track,
-                    "train_lap_s": lap_s, "laps": laps, "checkpoint": marks[0] if marks else ""}
+                    "train_lap_s": lap_s, "laps": laps, "checkpoint": marks[0] if marks else "",
+                    "unseen_lapped": lapped, "unseen": len(unseen)}
     return best

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from formula_tourney.results.folder import CorruptResultError
+from formula_tourney.results.metrics import general_rank
 from formula_tourney.tourney.adaptive import AdaptiveRun
 from formula_tourney.tourney.executors import Executor
 from formula_tourney.tourney.job_events import Event
@@ -431,9 +432,9 @@ class Scheduler:
                               "chosen": False})
         best: dict[str, dict[str, Any]] = {}
         for item in found:
-            if item["entrant"] not in best or item["train_lap_s"] < best[item["entrant"]][
-                "train_lap_s"
-            ]:
+            rank = general_rank(item["train_lap_s"], item["laps"], key)
+            held = best.get(item["entrant"])
+            if held is None or rank < general_rank(held["train_lap_s"], held["laps"], key):
                 best[item["entrant"]] = item
         for item in best.values():
             item["chosen"] = True
