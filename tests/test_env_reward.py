@@ -149,7 +149,7 @@ def test_a_run_fills_the_limit_speeds_from_the_reference_limits_profile() -> Non
     reference limit's lap, whose time is the reference limit (33.84 s on the oval); a run
     without it gives none. The oval's slowest point is far faster than technical's hairpins."""
     spec = build_run_spec(variant="WIN1", train_tracks=["oval"],
-                          test_tracks=["oval", "technical"], preset="best",
+                          test_tracks=["oval", "technical"], preset="tuned",
                           env_overrides={"overspeed_crash_weight": 0.3})
     envs = RunEnvs(spec)
     car = spec.env.car_params()
@@ -162,7 +162,7 @@ def test_a_run_fills_the_limit_speeds_from_the_reference_limits_profile() -> Non
                             reference_offsets(envs.tracks["oval"], "mincurv", car), car)
     assert np.array_equal(profile.speed_mps, oval)
     assert reference_limit_s(envs.tracks["oval"], car) == pytest.approx(33.84, abs=0.005)
-    plain = RunEnvs(build_run_spec(variant="WIN1", train_tracks=["oval"], preset="best"))
+    plain = RunEnvs(build_run_spec(variant="WIN1", train_tracks=["oval"], preset="tuned"))
     assert plain.config("oval", test=False).limit_speeds_mps == ()
 
 
@@ -242,12 +242,16 @@ def test_the_reward_settings_keep_the_config_hash_of_existing_runs() -> None:
     """Config hashes of runs (the paper's, a crash penalty, the progress reward) as written
     before the reward model, so that a resumed tournament still finds their jobs finished. The
     paper's is the hash of the layout before; ``best-demos`` and ``best`` carry the settings of
-    the presets they replaced under their new names."""
+    the presets they replaced under their new names. ``best`` took the overspeed crash penalty
+    later: its runs have a new hash, and the former ``best`` (the penalty set to 0) the old."""
     digests = {preset: build_run_spec(variant="WIN1", train_tracks=["oval"],
                                       preset=preset).digest()
                for preset in ("paper", "best-demos", "best")}  # fmt: skip
     assert digests == {"paper": "b96be71af1f8944f", "best-demos": "19242dd8d92773a9",
-                       "best": "b7cb11ff96e7fa13"}
+                       "best": "e41b92054560af51"}
+    former = build_run_spec(variant="WIN1", train_tracks=["oval"], preset="best",
+                            env_overrides={"overspeed_crash_weight": 0.0})
+    assert former.digest() == "b7cb11ff96e7fa13"
     spec = build_run_spec(variant="WIN1", train_tracks=["oval"], preset="best-demos")
     assert spec.agent.crash_penalty == 1000.0
     assert R.RewardRule.of(spec.agent) == R.RewardRule(scale=0.02, crash_penalty=1000.0)

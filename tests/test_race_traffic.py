@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from gymnasium.utils.env_checker import check_env
 from simtracks import stadium
 
@@ -62,3 +63,21 @@ def test_without_bots_the_learner_drives_as_the_single_env():
         if t1 or tr1:
             break
     assert env.sim.state[0, K.ST_STEPS] == single._b.state[0, K.ST_STEPS]
+
+
+def test_a_learner_with_the_overspeed_term_pays_it_among_bots_that_do_not():
+    """The learner's overspeed crash term reads its own limit speeds (12 m/s here); the bots,
+    whose reward nobody reads, leave the term out. Steered off the straight from 25 m/s, the
+    learner's end pays -1 less 0.01 x (Vx^2 - 12^2), as alone."""
+    cfg = {**CFG, "start_speed_mps": 25.0, "overspeed_crash_weight": 0.01,
+           "limit_speeds_mps": (12.0,) * TRACK.n}
+    env = TrafficEnv(cfg, bots=2, gap_m=(100.0, 150.0))
+    assert all(b.config.overspeed_crash_weight == 0.0 for b in env._bots)
+    env.reset(seed=0, options={"start_s_m": 100.0})
+    term = False
+    while not term:
+        obs, reward, term, trunc, info = env.step(np.array([1.0, 0.0, 0.0], np.float32))
+        assert not trunc
+    vx = obs[K.OBS_VX] * K.SPEED_SCALE_MPS
+    assert info["termination"] == "off_track" and vx > 12.0
+    assert reward == pytest.approx(-1.0 - 0.01 * (vx * vx - 144.0), rel=1e-6)

@@ -465,7 +465,8 @@ def test_best_demos_changes_only_the_ddpg_family(ring_tracks) -> None:
 
 
 def test_best_changes_the_reward_for_all_and_the_ddpg_familys_update(ring_tracks) -> None:
-    """`best` is `tuned` with the progress reward (line term 0.3) for every family
+    """`best` is `tuned` with the progress reward (line term 0.3) and the overspeed crash
+    penalty (0.5) for every family
     and, for the WIN variants alone (the family it was measured on), twice `tuned`'s learning
     rates and tests on a 3 000-update average of the actor. A user's env override wins over the
     preset's, key by key, and is named."""
@@ -483,7 +484,8 @@ def test_best_changes_the_reward_for_all_and_the_ddpg_familys_update(ring_tracks
         assert progress.agent == tuned.agent, variant
         env_changed = {k: v for k, v in progress.env.model_dump().items()
                        if v != getattr(tuned.env, k)}  # fmt: skip
-        assert env_changed == {"progress_reward": True, "track_pos_weight": 0.3}, variant
+        assert env_changed == {"progress_reward": True, "track_pos_weight": 0.3,
+                               "overspeed_crash_weight": 0.5}, variant
     mine = build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="best",
                           env_overrides={"track_pos_weight": 1.0, "slow_penalty": 50.0})
     assert (mine.env.progress_reward, mine.env.track_pos_weight, mine.env.slow_penalty) \

@@ -62,6 +62,8 @@ def race_bot(kind: str, track: Track, settings: EnvSettings | None,
     car = env.car_params()
     offsets = reference_offsets(track, BOT_LINE, car)
     fields = {k: getattr(env, k) for k in type(env).model_fields}
+    # nobody reads a bot's reward: it leaves out the term that needs a run's limit speeds
+    fields["overspeed_crash_weight"] = 0.0
     config = EnvConfig(**fields, track=track, reference_line="centre")
     label = name or kind
 
