@@ -240,14 +240,15 @@ class Selection(_Strict):
     kind: Literal["best", "general"] = Field(
         "best",
         description="best: the best clean lap on the train track; general: among periodic test "
-        "checkpoints that also finish every unseen test track, the best on the train track.",
+        "checkpoints that also finish every unseen test track, the best on the train track (for "
+        "runs never tested on their train tracks: clean laps on the most unseen tracks).",
     )
     min_unseen_finish_rate: float = Field(
         0.5,
         gt=0.0,
         le=1.0,
         description="For 'general': fraction of the test starts on each unseen track that must "
-        "finish a lap.",
+        "finish a lap (not read for runs never tested on their train tracks).",
     )
 
 
