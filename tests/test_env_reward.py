@@ -85,6 +85,18 @@ def test_a_slow_end_pays_minus_slow_penalty_and_damage_is_its_own_part() -> None
     assert hits >= 1  # a wall hit costs damage_weight x its damage
 
 
+def _steer_off_the_straight(env: FormulaRacingEnv, speed_mps: float) -> tuple[float, float, dict]:
+    """Full lock from 100 m down the stadium's straight at ``speed_mps`` until the car leaves the
+    track: its Vx (m/s) at the step it left, that step's reward and info."""
+    env.reset(options={"start_s_m": 100.0, "start_speed_mps": speed_mps})
+    term, steps = False, 0
+    while not term and steps < 100:
+        obs, r, term, _, info = env.step(np.array([1.0, 0.0, 0.0], np.float32))
+        steps += 1
+    assert info["termination"] == "off_track"
+    return float(obs[K.OBS_VX] * K.SPEED_SCALE_MPS), float(r), info
+
+
 @pytest.mark.parametrize("weight", [0.0, 0.002])
 def test_leaving_the_track_at_speed_pays_the_kinetic_energy_wall_penalty(weight: float) -> None:
     """Steered off the straight at 25 m/s and at 10 m/s: the off-track end pays -1 less
@@ -93,13 +105,7 @@ def test_leaving_the_track_at_speed_pays_the_kinetic_energy_wall_penalty(weight:
     ends = {}
     for speed in (25.0, 10.0):
         env = FormulaRacingEnv(config={"track": TRACK, "wall_energy_weight": weight})
-        env.reset(options={"start_s_m": 100.0, "start_speed_mps": speed})
-        term, steps = False, 0
-        while not term and steps < 100:
-            obs, r, term, _, info = env.step(np.array([1.0, 0.0, 0.0], np.float32))
-            steps += 1
-        assert info["termination"] == "off_track"
-        vx = obs[K.OBS_VX] * K.SPEED_SCALE_MPS
+        vx, r, info = _steer_off_the_straight(env, speed)
         assert r == pytest.approx(-1.0 - weight * vx * vx, rel=1e-6)
         assert dict(info["rewards"]) == dict.fromkeys(R.PARTS, 0.0) | {"end": r}
         ends[speed] = r
@@ -120,13 +126,7 @@ def test_leaving_the_track_above_the_limits_speed_pays_the_overspeed_penalty(
     env = FormulaRacingEnv(config={"track": TRACK, "overspeed_crash_weight": weight,
                                    "limit_speeds_mps": speeds})
     assert env.unwrapped._b.geom[:, K.G_VLIM].tolist() == list(speeds)
-    env.reset(options={"start_s_m": 100.0, "start_speed_mps": 25.0})
-    term, steps = False, 0
-    while not term and steps < 100:
-        obs, r, term, _, info = env.step(np.array([1.0, 0.0, 0.0], np.float32))
-        steps += 1
-    assert info["termination"] == "off_track"
-    vx = obs[K.OBS_VX] * K.SPEED_SCALE_MPS
+    vx, r, info = _steer_off_the_straight(env, 25.0)
     assert 14.0 < vx < 18.0
     if limit_mps < vx:
         assert r == pytest.approx(-1.0 - weight * (vx * vx - limit_mps**2), rel=1e-6)
