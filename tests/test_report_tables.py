@@ -302,3 +302,11 @@ def test_runs_trained_on_tracks_they_are_never_tested_on(tmp_path: Path) -> None
             "laps on 2 of 3 unseen tracks") in t3.notes
     assert ("win1 MOT + LAC, per run: 2 and 0 of 3 unseen tracks lapped cleanly by one "
             "checkpoint") in t3.notes
+
+
+def test_table3_says_no_general_model_only_where_there_is_none(
+        built: dict[str, ReportTable]) -> None:
+    """Rows with a general model get its note alone; only per1m MOT, which has none, is noted
+    as having none."""
+    t3 = built["table3"]
+    assert [n.split(":")[0] for n in t3.notes if "no general model" in n] == ["per1m MOT"]

@@ -580,13 +580,13 @@ def table3(ctx: Context) -> ReportTable:
         elif tested and cfg["train"] not in cfg["tracks"]:
             table.notes.append(f"{label}: no general model (no checkpoint laps any unseen "
                                "track cleanly)")
-        if tested and cfg["train"] not in cfg["tracks"]:
-            table.notes.append(f"{label}, per run: {_unseen_lapped_per_run(ctx, cfg)}")
         elif tested:
             table.notes.append(
                 f"{label}: no general model (no checkpoint with a clean {cfg['train']} lap "
                 f"finishes a lap from {rate:.0%} of the starts on every unseen track)"
             )
+        if tested and cfg["train"] not in cfg["tracks"]:
+            table.notes.append(f"{label}, per run: {_unseen_lapped_per_run(ctx, cfg)}")
         table.records.append({"row": label, "train_track": cfg["train"], "jobs": cfg["jobs"],
                               "best": st, "general": which, "general_laps": laps})
     for blabel, bot, ref in bot_rows(ctx.data.baselines):
