@@ -138,8 +138,9 @@ PRESETS: dict[str, Preset] = {
         description="The best from scratch: 'tuned' with the reward paying progress along the "
         "track (line term 0.3) and the overspeed crash penalty (weight 0.5) and, for the DDPG "
         "family, twice the learning rates and tests on a ~3 000-update average of the actor; on "
-        "oval WIN1 beat the best bot after a median 126 CPU-s, 4 of 4 seeds, and lapped "
-        "technical from scratch after a median 44 CPU-s (docs/results.md; "
+        "oval WIN1 beat the best bot after a median 126 CPU-s on seeds 0-3 (5 of seeds 0-7 "
+        "within 300 CPU-s), and lapped technical from scratch after a median 44 CPU-s "
+        "(docs/results.md; "
         "benchmarks/time_to_competence.py --track oval --entrants WIN1:best --seeds 0,1,2,3 "
         "--budget-cpu-s 300 --to-budget).",
         overrides=_FAST_SMALL,
