@@ -11,7 +11,7 @@ from simtracks import stadium
 from formula_tourney.agents.variants import AgentConfig
 from formula_tourney.errors import UserInputError
 from formula_tourney.field_marks import added_in_layout, beyond_paper
-from formula_tourney.lines.limit import reference_limit_s, reference_limit_speeds_mps
+from formula_tourney.lines.limit import reference_limit_s
 from formula_tourney.lines.registry import reference_offsets
 from formula_tourney.lines.speed_profile import speed_profile
 from formula_tourney.sim import kernels as K
@@ -154,14 +154,14 @@ def test_a_run_fills_the_limit_speeds_from_the_reference_limits_profile() -> Non
     envs = RunEnvs(spec)
     car = spec.env.car_params()
     oval = envs.config("oval", test=False).limit_speeds_mps
-    assert np.array_equal(oval, reference_limit_speeds_mps(envs.tracks["oval"], car))
     assert envs.config("oval", test=True).limit_speeds_mps == oval
     technical = envs.config("technical", test=True).limit_speeds_mps
     assert min(oval) > 55.0 and min(technical) < 25.0
     profile = speed_profile(envs.tracks["oval"],
                             reference_offsets(envs.tracks["oval"], "mincurv", car), car)
     assert np.array_equal(profile.speed_mps, oval)
-    assert reference_limit_s(envs.tracks["oval"], car) == pytest.approx(33.84, abs=0.005)
+    assert profile.lap_time_s == reference_limit_s(envs.tracks["oval"], car) == pytest.approx(
+        33.84, abs=0.005)
     plain = RunEnvs(build_run_spec(variant="WIN1", train_tracks=["oval"], preset="tuned"))
     assert plain.config("oval", test=False).limit_speeds_mps == ()
 

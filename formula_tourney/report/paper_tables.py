@@ -471,9 +471,10 @@ def stored_general_model(general: pd.DataFrame, models: pd.DataFrame,
     job_id, episode = str(pick["job_id"]), float(pick["episode"])
     mine = models.loc[(models["job_id"] == job_id) & (models["episode"] == episode)]
     laps = {t: float(mine.loc[mine["track"] == t, "clean_lap_s"].min()) for t in tracks}
-    unseen = [t for t in tracks if t != str(pick["train_track"])]
+    train = str(pick["train_track"])
     return {"job_id": job_id, "episode": episode, "laps": laps, "chosen_by": "tournament",
-            "unseen_lapped": sum(math.isfinite(laps[t]) for t in unseen), "unseen": len(unseen)}
+            "unseen_lapped": len(metrics.unseen_clean_laps(laps, train)),
+            "unseen": len([t for t in tracks if t != train])}
 
 
 def _unseen_lapped_per_run(ctx: Context, cfg: dict[str, Any]) -> str:

@@ -142,6 +142,13 @@ def run_metrics(tests: pd.DataFrame, train_track: str) -> dict[str, Any]:
             "distance_m": float(row["distance_m"])}
 
 
+def unseen_clean_laps(laps: Mapping[str, float | None], train_track: str) -> list[float]:
+    """A model's clean laps (s) on the tracks other than ``train_track``; a track without one
+    (nan, or None as the index stores it) is left out."""
+    return [float(v) for t, v in laps.items()
+            if t != train_track and v is not None and math.isfinite(v)]  # fmt: skip
+
+
 def general_rank(train_lap_s: float | None, laps: Mapping[str, float | None],
                  train_track: str) -> tuple[float, float]:
     """Sort key of a general model candidate, lowest first: its train-track lap where it has
@@ -149,8 +156,7 @@ def general_rank(train_lap_s: float | None, laps: Mapping[str, float | None],
     minus the unseen tracks it laps cleanly, then the sum of those laps (s)."""
     if train_lap_s is not None and math.isfinite(train_lap_s):
         return 0.0, float(train_lap_s)
-    clean = [float(v) for t, v in laps.items()
-             if t != train_track and v is not None and math.isfinite(v)]  # fmt: skip
+    clean = unseen_clean_laps(laps, train_track)
     return -float(len(clean)), float(sum(clean))
 
 
@@ -175,7 +181,7 @@ def general_model(
         by_track = rows.set_index("track")
         laps = {t: (float(by_track.loc[t, "clean_lap_s"]) if t in by_track.index
                     else math.nan) for t in test_tracks}  # fmt: skip
-        lapped = sum(math.isfinite(laps[t]) for t in unseen)
+        lapped = len(unseen_clean_laps(laps, train_track))
         if train_tested:
             lap_s = (float(by_track.loc[train_track, "clean_lap_s"])
                      if train_track in by_track.index else math.nan)
