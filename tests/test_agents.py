@@ -236,6 +236,33 @@ def test_ddpg_learns_a_contextual_bandit() -> None:
     np.testing.assert_allclose(steer, [0.5, -0.5, 0.5, -0.5], atol=0.15)
 
 
+def _saturated_steer_after(updates: int, **extra: float) -> float:
+    """The greedy steer of an actor whose steer pre-activation starts at +30 (full lock, where
+    tanh's gradient is 0 in float32), after ``updates`` on one-step episodes that pay
+    -steer^2: the critic soon says "steer less", and only a gradient at z can act on it."""
+    cfg = get_variant("WIN1", {"hidden": (64, 64), "batch_size": 64, "actor_lr": 1e-3,
+                               "critic_lr": 3e-3, **extra})  # fmt: skip
+    agent = make_agent(cfg, 2, seed=0)
+    with torch.no_grad():
+        agent.actor.out.bias[0] += 30.0
+    buf = ReplayBuffer(5000, 2, 3, seed=0)
+    rng = np.random.default_rng(0)
+    for _ in range(2000):
+        s = rng.uniform(-1, 1, 2).astype(np.float32)
+        a = np.array([rng.uniform(-1, 1), rng.random(), rng.random()], np.float32)
+        buf.add(s, a, -float(a[0]) ** 2, s, terminated=True, truncated=False)
+    for _ in range(updates):
+        agent.update(buf.sample(64))
+    return float(agent.act(np.array([[0.3, -0.2]], np.float32))[0])
+
+
+def test_saturation_term_frees_an_actor_stuck_at_full_lock() -> None:
+    """The paper's loss leaves a saturated steer at full lock; the saturation term pulls its
+    pre-activation back inside the bound, where the critic's gradient steers it to 0."""
+    assert _saturated_steer_after(2000) == 1.0
+    assert abs(_saturated_steer_after(2000, preact_penalty=1.0, preact_bound=6.0)) < 0.25
+
+
 @pytest.mark.parametrize("name", ["WIN4", "LSTM4"])
 def test_q_pair_equals_two_critic_evaluations(name: str) -> None:
     """The shared-state-path evaluation gives exactly Q(s, a) and Q(s, mu(s))."""
@@ -249,11 +276,17 @@ def test_q_pair_equals_two_critic_evaluations(name: str) -> None:
         torch.testing.assert_close(q_pi, agent.critic(obs, pi, past))
 
 
-@pytest.mark.parametrize("name", ["WIN1", "WIN4", "MS3", "PER40k"])
-def test_hand_written_update_matches_autograd(name: str) -> None:
+@pytest.mark.parametrize(
+    ("name", "extra"),
+    [("WIN1", {}), ("WIN4", {}), ("MS3", {}), ("PER40k", {}),
+     # a bound this small puts most pre-activations of a fresh actor beyond it
+     ("WIN1", {"preact_penalty": 0.5, "preact_bound": 0.02})],
+)  # fmt: skip
+def test_hand_written_update_matches_autograd(name: str, extra: dict) -> None:
     """The MLP critic's autograd-free update gives the autograd update's weights and priorities
-    (also across a change of batch size, which reallocates its buffers)."""
-    cfg = get_variant(name, {**_small(name), "buffer_size": 1000})
+    (also across a change of batch size, which reallocates its buffers), with the saturation
+    term too."""
+    cfg = get_variant(name, {**_small(name), "buffer_size": 1000, **extra})
     manual, reference = make_agent(cfg, D, seed=4), make_agent(cfg, D, seed=4)
     assert manual._mlp_update is not None
     kw = {"alpha": cfg.per_alpha, "lambda3": cfg.per_lambda3} if cfg.prioritized else {}

@@ -37,7 +37,7 @@ from pydantic import BaseModel, ConfigDict
 from torch import nn
 
 from formula_tourney.agents.buffers import ReplayBatch
-from formula_tourney.agents.mlp_update import BCLoss, MLPUpdate
+from formula_tourney.agents.mlp_update import BCLoss, MLPUpdate, Saturation
 from formula_tourney.agents.networks import Actor, GreedyAct, MLPCritic
 from formula_tourney.agents.noise import action_box
 from formula_tourney.errors import UserInputError
@@ -287,7 +287,8 @@ class Agent:
         if self.mlp_backend and mlp_nets:
             assert self.actor_target is not None
             self._mlp_update = MLPUpdate(
-                self.actor, self.critic, self.actor_target, self.critic_target
+                self.actor, self.critic, self.actor_target, self.critic_target,
+                Saturation(cfg.preact_penalty, cfg.preact_bound),
             )
         self._greedy = GreedyAct(self.actor) if isinstance(self.actor, Actor) else None
         # what tests and races drive: the average where one is kept, else the online actor
@@ -422,10 +423,10 @@ class Agent:
                 batch.indices, result.td.cpu().numpy(), result.grad_a.cpu().numpy()
             )
         self.updates += 1
-        sum_q, sum_q_pi, sum_gq_td, sum_abs_td, bc_loss = result.stats
+        sum_q, sum_q_pi, sum_gq_td, sum_abs_td, bc_loss, preact_loss = result.stats
         n = len(batch.actions)
         return UpdateInfo(  # sum_gq_td = sum_i (-2/N w_i td_i) td_i = -2 L(Q)
-            critic_loss=-0.5 * sum_gq_td, actor_loss=-sum_q_pi / n + bc_loss,
+            critic_loss=-0.5 * sum_gq_td, actor_loss=-sum_q_pi / n + bc_loss + preact_loss,
             q_mean=sum_q / n, td_abs_mean=sum_abs_td / n,
         )  # fmt: skip
 

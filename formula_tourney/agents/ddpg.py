@@ -23,7 +23,8 @@ from pydantic import Field
 from torch import nn
 
 from formula_tourney.agents.core import Agent, FamilySettings
-from formula_tourney.agents.networks import LSTMCritic, MLPCritic
+from formula_tourney.agents.networks import Actor, LSTMCritic, MLPCritic
+from formula_tourney.field_marks import marks
 
 
 class DDPGSettings(FamilySettings):
@@ -47,6 +48,26 @@ class DDPGSettings(FamilySettings):
         le=2048,
         description="Units of the state stream before the concatenation with the action in the "
         "LSTM critic; it sets the LSTM's input width and so most of its cost.",
+    )
+    preact_penalty: float = Field(
+        0.0,
+        ge=0.0,
+        description="Beyond the paper: the actor's loss also pays this times the squared excess "
+        "of each output's pre-activation z beyond +-preact_bound (summed over the action, "
+        "averaged over the batch). A squashed output whose |z| runs to tens has a gradient of "
+        "~exp(-|z|): the actor can no longer move that action whatever the critic says, and a "
+        "run whose actor saturates early (full lock, full throttle) stays there. 0: the paper's "
+        "loss.",
+        json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
+    )
+    preact_bound: float = Field(
+        6.0,
+        gt=0.0,
+        le=50.0,
+        description="Beyond the paper: the |z| up to which preact_penalty costs nothing; 6 still "
+        "lets a pedal reach 0.0025 of its travel from either end (sigmoid(-6)) and the steer "
+        "0.99999 of full lock.",
+        json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
     )
 
 
@@ -89,6 +110,19 @@ class DDPGAgent(Agent):
         """Eq. (2) as it is."""
         return critic_loss
 
+    def _policy_action(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """mu(s), keeping its pre-activations for the saturation term of :meth:`actor_loss`."""
+        assert isinstance(self.actor, Actor)
+        self._policy_preact = self.actor.preactivation(obs)
+        return self.actor.squash(self._policy_preact), None
+
     def actor_loss(self, q_pi: torch.Tensor, log_pi: torch.Tensor | None) -> torch.Tensor:
-        """Eq. (3): the actor ascends Q(s, mu(s))."""
-        return -q_pi.mean()
+        """Eq. (3): the actor ascends Q(s, mu(s)); with ``preact_penalty`` it also pays
+        w mean_i sum_j max(0, |z_ij| - bound)^2 (``mlp_update.MLPUpdate`` writes the same
+        gradient by hand)."""
+        loss = -q_pi.mean()
+        if self.cfg.preact_penalty:
+            z, bound = self._policy_preact, self.cfg.preact_bound
+            excess = z - z.clamp(-bound, bound)
+            loss = loss + self.cfg.preact_penalty * excess.square().sum(-1).mean()
+        return loss

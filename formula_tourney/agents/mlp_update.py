@@ -19,7 +19,9 @@ allocated once per batch size (``out=``), with no graph to build:
   anyway;
 * Adam runs once per network on flat views (parameters, gradients and moments are contiguous);
 * with demonstrations, behaviour cloning in the actor's loss (``BCLoss``) adds its gradient at
-  ``mu`` before the squash's backward: one (B, 3) block, nothing when it is off.
+  ``mu`` before the squash's backward: one (B, 3) block, nothing when it is off;
+* the saturation term (``preact_penalty``) adds its gradient at the pre-activations ``z`` after
+  the squash's backward: one clamp, one subtraction and one add, nothing when it is off.
 
 The parameters stay the ``nn.Module`` parameters (state_dict keys and checkpoints unchanged);
 gradients are written into the parameters' ``.grad``, which the agent binds to views of one flat
@@ -41,7 +43,8 @@ aten = torch.ops.aten
 class UpdateResult(NamedTuple):
     """What the agent reads back from one update (tensors are workspace views, reused later)."""
 
-    # [sum Q(s, a), sum Q(s, mu(s)), sum dL/dQ * td (= -2 L(Q)), sum |td|, cloning term (or 0)]
+    # [sum Q(s, a), sum Q(s, mu(s)), sum dL/dQ * td (= -2 L(Q)), sum |td|, cloning term (or 0),
+    #  saturation term (or 0)]
     stats: list[float]
     td: torch.Tensor  # (B,) y - Q(s, a)
     grad_a: torch.Tensor | None  # (B, A) grad_a Q(s_i, a_i), PER only
@@ -54,6 +57,14 @@ class BCLoss(NamedTuple):
     weight: float
     rows: int
     q_filter: bool = True
+
+
+class Saturation(NamedTuple):
+    """The actor loss's saturation term: ``weight`` times the squared excess of each
+    pre-activation beyond +-``bound`` (the DDPG settings ``preact_penalty``, ``preact_bound``)."""
+
+    weight: float
+    bound: float
 
 
 @dataclass
@@ -114,13 +125,15 @@ class _Workspace:
         self.zeros = torch.zeros(B, 1, **z)  # addcmul's addend: gq in one operator
         self.y, self.td = torch.empty(B, 1, **z), torch.empty(B, 1, **z)
         self.grad_a = torch.empty(B, action_dim, **z)
-        self.stats = torch.zeros(5, **z)  # [4]: the cloning term, written only when it is on
+        self.z_excess = torch.empty(B, action_dim, **z)  # z beyond the saturation term's bound
+        # [4], [5]: the cloning and saturation terms, written only when they are on
+        self.stats = torch.zeros(6, **z)
         self.h2_q, self.h2_pi = self.h2[:B], self.h2[B:]
         self.m2_q, self.m2_pi = self.m2[:B], self.m2[B:]
         self.q_q, self.q_rows = self.q[:B], self.q.view(2, B)
         self.gq_flat, self.td_flat = self.gq.view(-1), self.td.view(-1)
         self.stats_q, self.stats_td, self.stats_abs = self.stats[0:2], self.stats[2], self.stats[3]
-        self.stats_bc = self.stats[4]
+        self.stats_bc, self.stats_preact = self.stats[4], self.stats[5]
         self.q_pi_flat = self.q[B:].view(-1)
         self._bc: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
         # transposed views read by the weight-gradient GEMMs (dW = g^T x)
@@ -148,7 +161,8 @@ class MLPUpdate:
     """
 
     def __init__(
-        self, actor: Actor, critic: MLPCritic, actor_target: Actor, critic_target: MLPCritic
+        self, actor: Actor, critic: MLPCritic, actor_target: Actor, critic_target: MLPCritic,
+        saturation: Saturation | None = None,
     ) -> None:
         if actor.window != critic.window:
             raise ValueError("MLPUpdate: actor and critic must read the same window")
@@ -171,6 +185,7 @@ class MLPUpdate:
             critic.l1.out_features, critic.l2.out_features,
         )  # fmt: skip
         self.action_dim = actor.out.out_features
+        self.saturation = saturation if saturation is not None and saturation.weight else None
         self._ws: _Workspace | None = None
 
     def _workspace(self, batch: int) -> _Workspace:
@@ -240,6 +255,18 @@ class MLPUpdate:
         ws.gpi[B - k:].addcmul_(diff, coef, value=2.0)
         torch.dot(diff.view(-1), diff.view(-1), out=ws.stats_bc).mul_(coef)
 
+    @staticmethod
+    def _saturation_gradient(ws: _Workspace, sat: Saturation) -> None:
+        """Adds the saturation term's dL/dz to ``ws.gz`` and its value to ``ws.stats_preact``:
+        L = w / B sum_i sum_j e_ij^2 with e = z - clamp(z, -bound, bound), so dL/dz = 2 w e / B
+        (``DDPGAgent.actor_loss`` is the same term through autograd)."""
+        excess = ws.z_excess
+        torch.clamp(ws.actor.z, -sat.bound, sat.bound, out=excess)
+        torch.sub(ws.actor.z, excess, out=excess)
+        ws.gz.add_(excess, alpha=2.0 * sat.weight / ws.batch)
+        flat = excess.view(-1)
+        torch.dot(flat, flat, out=ws.stats_preact).mul_(sat.weight / ws.batch)
+
     def _actor_backward(
         self, ws: _Workspace, x: torch.Tensor, actions: torch.Tensor, bc: BCLoss | None
     ) -> None:
@@ -253,6 +280,8 @@ class MLPUpdate:
         pedals_backward = (aten.sigmoid_backward if ws.actor.sigmoid_pedals
                            else aten.tanh_backward)  # the pedal action mode: tanh  # fmt: skip
         pedals_backward.grad_input(ws.gpi_pedals, ws.actor.pi_pedals, grad_input=ws.gz_pedals)
+        if self.saturation is not None:
+            self._saturation_gradient(ws, self.saturation)
         self._dense_backward(ws.gz, ws.gz_t, ws.a2, self.a_out)
         torch.mm(ws.gz, self.a_out.w, out=ws.ga2)
         aten.threshold_backward.grad_input(ws.ga2, ws.a2, 0, grad_input=ws.ga2)

@@ -73,12 +73,19 @@ class Actor(nn.Module):
             if action_dim == 3:
                 self.out.bias[2] += brake_bias
 
-    def forward(self, obs_window: torch.Tensor) -> torch.Tensor:
+    def preactivation(self, obs_window: torch.Tensor) -> torch.Tensor:
+        """z: the output layer's values before the squash (what the saturation term reads)."""
         x = obs_window[:, -self.window :].flatten(1)
         x = torch.relu_(self.l1(x))
         x = torch.relu_(self.l2(x))
-        z = self.out(x)
+        return self.out(x)
+
+    def squash(self, z: torch.Tensor) -> torch.Tensor:
+        """The action of pre-activations ``z``: tanh steer, the pedals' squash."""
         return torch.cat([torch.tanh(z[:, :1]), self.squash_pedals(z[:, 1:])], dim=1)
+
+    def forward(self, obs_window: torch.Tensor) -> torch.Tensor:
+        return self.squash(self.preactivation(obs_window))
 
 
 def addmm_operands(layer: nn.Linear) -> tuple[torch.Tensor, torch.Tensor]:
