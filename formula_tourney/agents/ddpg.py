@@ -18,6 +18,8 @@ unstable). With the MLP critic the update runs through the hand-written backend
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import torch
 from pydantic import Field
 from torch import nn
@@ -25,6 +27,8 @@ from torch import nn
 from formula_tourney.agents.core import Agent, FamilySettings
 from formula_tourney.agents.networks import Actor, LSTMCritic, MLPCritic
 from formula_tourney.field_marks import marks
+
+PreactBound = Annotated[float, Field(gt=0.0, le=50.0)]
 
 
 class DDPGSettings(FamilySettings):
@@ -60,13 +64,12 @@ class DDPGSettings(FamilySettings):
         "loss.",
         json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
     )
-    preact_bound: float = Field(
-        6.0,
-        gt=0.0,
-        le=50.0,
-        description="Beyond the paper: the |z| up to which preact_penalty costs nothing; 6 still "
-        "lets a pedal reach 0.0025 of its travel from either end (sigmoid(-6)) and the steer "
-        "0.99999 of full lock.",
+    preact_bound: tuple[PreactBound, PreactBound] = Field(
+        (6.0, 6.0),
+        description="Beyond the paper: the |z| up to which preact_penalty costs nothing, for "
+        "the steer and for the pedals. 6 lets a pedal reach 0.0025 of its travel from either "
+        "end (sigmoid(-6)) and the steer 0.99999 of full lock; a steer held at 6 still has a "
+        "gradient of only ~5e-5 (tanh'(6)), at 3 of ~0.01 (0.995 of full lock).",
         json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
     )
 
@@ -118,11 +121,13 @@ class DDPGAgent(Agent):
 
     def actor_loss(self, q_pi: torch.Tensor, log_pi: torch.Tensor | None) -> torch.Tensor:
         """Eq. (3): the actor ascends Q(s, mu(s)); with ``preact_penalty`` it also pays
-        w mean_i sum_j max(0, |z_ij| - bound)^2 (``mlp_update.MLPUpdate`` writes the same
-        gradient by hand)."""
+        w mean_i sum_j max(0, |z_ij| - bound_j)^2, bound_j the steer's or the pedals'
+        (``mlp_update.MLPUpdate`` writes the same gradient by hand)."""
         loss = -q_pi.mean()
         if self.cfg.preact_penalty:
-            z, bound = self._policy_preact, self.cfg.preact_bound
-            excess = z - z.clamp(-bound, bound)
+            z = self._policy_preact
+            steer_bound, pedal_bound = self.cfg.preact_bound
+            bound = z.new_tensor([steer_bound] + [pedal_bound] * (z.shape[1] - 1))
+            excess = z - torch.minimum(torch.maximum(z, -bound), bound)
             loss = loss + self.cfg.preact_penalty * excess.square().sum(-1).mean()
         return loss

@@ -61,10 +61,12 @@ class BCLoss(NamedTuple):
 
 class Saturation(NamedTuple):
     """The actor loss's saturation term: ``weight`` times the squared excess of each
-    pre-activation beyond +-``bound`` (the DDPG settings ``preact_penalty``, ``preact_bound``)."""
+    pre-activation beyond +-its bound, the steer's or the pedals' (the DDPG settings
+    ``preact_penalty``, ``preact_bound``)."""
 
     weight: float
-    bound: float
+    steer_bound: float
+    pedal_bound: float
 
 
 @dataclass
@@ -125,7 +127,8 @@ class _Workspace:
         self.zeros = torch.zeros(B, 1, **z)  # addcmul's addend: gq in one operator
         self.y, self.td = torch.empty(B, 1, **z), torch.empty(B, 1, **z)
         self.grad_a = torch.empty(B, action_dim, **z)
-        self.z_excess = torch.empty(B, action_dim, **z)  # z beyond the saturation term's bound
+        self.z_excess = torch.empty(B, action_dim, **z)  # z beyond the saturation term's bounds
+        self.z_excess_steer, self.z_excess_pedals = self.z_excess[:, :1], self.z_excess[:, 1:]
         # [4], [5]: the cloning and saturation terms, written only when they are on
         self.stats = torch.zeros(6, **z)
         self.h2_q, self.h2_pi = self.h2[:B], self.h2[B:]
@@ -258,10 +261,12 @@ class MLPUpdate:
     @staticmethod
     def _saturation_gradient(ws: _Workspace, sat: Saturation) -> None:
         """Adds the saturation term's dL/dz to ``ws.gz`` and its value to ``ws.stats_preact``:
-        L = w / B sum_i sum_j e_ij^2 with e = z - clamp(z, -bound, bound), so dL/dz = 2 w e / B
-        (``DDPGAgent.actor_loss`` is the same term through autograd)."""
+        L = w / B sum_i sum_j e_ij^2 with e = z - clamp(z, -bound_j, bound_j), so dL/dz =
+        2 w e / B (``DDPGAgent.actor_loss`` is the same term through autograd)."""
         excess = ws.z_excess
-        torch.clamp(ws.actor.z, -sat.bound, sat.bound, out=excess)
+        torch.clamp(ws.actor.z_steer, -sat.steer_bound, sat.steer_bound, out=ws.z_excess_steer)
+        torch.clamp(ws.actor.z_pedals, -sat.pedal_bound, sat.pedal_bound,
+                    out=ws.z_excess_pedals)  # fmt: skip
         torch.sub(ws.actor.z, excess, out=excess)
         ws.gz.add_(excess, alpha=2.0 * sat.weight / ws.batch)
         flat = excess.view(-1)
