@@ -156,6 +156,32 @@ def test_generated_track_loads_by_name_and_round_trips_through_toml():
     assert np.allclose(again.x_m, track.x_m, atol=1e-9)
 
 
+def _tight_share(track) -> float:
+    """Share of the lap whose centre line (curvature averaged over ~10 m) bends under 40 m."""
+    step_m = float(np.diff(track.s_m).mean())
+    window = max(1, int(10.0 / step_m))
+    bend = np.convolve(np.abs(track.curvature_1pm), np.ones(window) / window, mode="same")
+    return float((bend > 1.0 / 40.0).mean())
+
+
+def test_short_generated_tracks_are_short_valid_and_tighter():
+    shares = {"gen": [], "gen-short": []}
+    for seed in SEEDS:
+        short = load_track(f"gen-short-{seed}")
+        assert short.name == f"gen-short-{seed}"
+        assert 800.0 <= short.length_m <= 1600.0
+        assert short.min_radius_m >= 12.0 - 1e-9 and short.closure_error_m < 1e-6
+        assert find_overlap(short) is None
+        assert short.length_m == generate_track(seed, min_length_m=800.0,
+                                                max_length_m=1600.0).length_m
+        shares["gen-short"].append(_tight_share(short))
+        shares["gen"].append(_tight_share(load_track(f"gen-{seed}")))
+    # What the kind is for: tight corners take a technical-like share of the lap (technical:
+    # 0.083), where a gen track's is a third of that.
+    assert float(np.median(shares["gen-short"])) > 0.07 > 0.035 > float(np.median(shares["gen"]))
+    assert _tight_share(load_track("technical")) == pytest.approx(0.083, abs=0.002)
+
+
 def test_generator_bounds_are_respected_and_checked():
     track = generate_track(3, min_length_m=5000.0, max_length_m=6000.0, min_width_m=12.0,
                            max_width_m=12.0, min_radius_m=30.0)

@@ -174,6 +174,21 @@ def test_generated_names_are_reserved_and_seeds_bounded(capsys, data_dir):
                    "gen-<seed> takes a seed in 0..999999999\n")
 
 
+def test_generate_short_saves_under_its_own_name_and_reserves_it(capsys, data_dir):
+    short = run_json(capsys, "tracks", "generate", "--seed", "7", "--short", "--save")
+    assert short["name"] == "gen-short-7" and 800 <= short["length_m"] <= 1600
+    assert short["saved"] == str(data_dir / "tracks" / "gen-short-7.toml")
+    assert run_json(capsys, "tracks", "show", "gen-short-7")["length_m"] == short["length_m"]
+    # gen-short-8 is generated, so neither kind of seed 7 may be saved under it.
+    for args in (("--short",), ()):
+        code, _, err = run(capsys, "tracks", "generate", "--seed", "7", *args, "--save",
+                           "--name", "gen-short-8")
+        assert code == 2 and "'gen-short-8' is reserved for generated tracks" in err
+    code, out, err = run(capsys, "tracks", "show", "gen-short-99999999999", "--json")
+    assert code == 2 and err == ("error: track 'gen-short-99999999999': seed 99999999999 is out "
+                                 "of range; gen-short-<seed> takes a seed in 0..999999999\n")
+
+
 HILLS = (
     '<?xml version="1.0" encoding="UTF-8"?>\n<params name="t" type="param">\n'
     '<section name="Main Track"><attnum name="width" unit="m" val="12"/>\n'

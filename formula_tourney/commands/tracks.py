@@ -15,7 +15,7 @@ from formula_tourney.commands.output import emit, message, styled
 from formula_tourney.errors import UserInputError
 from formula_tourney.safeio import check_output_path
 from formula_tourney.sim.catalog import list_tracks, load_track, user_tracks_dir
-from formula_tourney.sim.generate import generate_spec
+from formula_tourney.sim.generate import GENERATED_KINDS, generate_spec
 from formula_tourney.sim.plot import check_plot_path, plot_tracks
 from formula_tourney.sim.track_store import (
     import_torcs_track,
@@ -132,14 +132,16 @@ def register(app: typer.Typer) -> None:
                 table.add_row(row["name"], f"{row['length_m'] / 1000:.3f}",
                               f"{row['width_m']:g}", row["source"])
             console.print(table)
-            console.print(f"user tracks folder: {folder}; generated: gen-<seed>")
+            console.print(f"user tracks folder: {folder}; generated: gen-<seed>, "
+                          "gen-short-<seed>")
 
         emit({"tracks": rows, "user_tracks_dir": folder}, as_json, render)
 
     @tracks_app.command("show")
     def show_cmd(
         name: str = typer.Argument(..., help="Track name (oval, technical, flowing, a user "
-                                   "track, gen-<seed>) or a .toml/.xml path."),
+                                   "track, gen-<seed>, gen-short-<seed>) or a .toml/.xml "
+                                   "path."),
         plot: Path | None = typer.Option(None, "--plot", help=PLOT_HELP),
         as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
     ) -> None:
@@ -191,21 +193,26 @@ def register(app: typer.Typer) -> None:
     def generate_cmd(
         seed: int = typer.Option(..., "--seed", help="Seed: the same seed gives the same track "
                                  "(also loadable anywhere as gen-<seed>)."),
+        short: bool = typer.Option(False, "--short", help="A short track, 0.8-1.6 km (also "
+                                   "loadable anywhere as gen-short-<seed>)."),
         save: bool = typer.Option(False, "--save", help="Also store it as a user track TOML."),
         name: str | None = typer.Option(None, "--name", help="Name for --save (default "
-                                        "gen-<seed>)."),
+                                        "gen-<seed> or gen-short-<seed>)."),
         force: bool = typer.Option(False, "--force", help="Replace a user track of that name."),
         plot: Path | None = typer.Option(None, "--plot", help=PLOT_HELP),
         as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
     ) -> None:
-        """A procedural track: closed, non-overlapping, 1.5-4 km, 8-14 m wide, radii >= 12 m."""
+        """A procedural track: closed, non-overlapping, 1.5-4 km (0.8-1.6 km with --short),
+        8-14 m wide, radii >= 12 m."""
         if name is not None and not save:
             raise UserInputError("--name only applies with --save")
         if plot is not None:
             check_output_path(check_plot_path(plot), "--plot")
-        target = (user_track_target(name or f"gen-{seed}", "--save", overwrite=force,
-                                    generated_seed=seed) if save else None)
-        spec, track = generate_spec(seed, name=name)
+        prefix = "gen-short" if short else "gen"
+        own_name = f"{prefix}-{seed}"
+        target = (user_track_target(name or own_name, "--save", overwrite=force,
+                                    generated_name=own_name) if save else None)
+        spec, track = generate_spec(seed, name=name or own_name, **GENERATED_KINDS[prefix])
         summary = track_summary(track)
         if target is not None:
             summary["saved"] = str(save_user_track(spec, target))

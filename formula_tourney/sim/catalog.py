@@ -6,12 +6,14 @@ name that passes the check always loads and one that fails it never does:
 
 1. a ``.toml``/``.xml`` file name or anything with a path separator is a file (relative paths
    against ``base_dir``, else the current folder); it must exist;
-2. ``gen-<seed>`` is the procedural track of that seed (the seed in ``0..generate.MAX_SEED``);
+2. ``gen-<seed>`` is the procedural track of that seed (the seed in ``0..generate.MAX_SEED``),
+   and ``gen-short-<seed>`` the short one (``generate.GENERATED_KINDS``);
 3. a built-in name (``oval``, ``technical``, ``flowing``);
 4. a user track: ``<data dir>/tracks/<name>.toml``.
 
-Built-in and ``gen-<digits>`` names are reserved: a user track of such a name could never be
-loaded, so ``tracks import``/``--save`` refuse them (:func:`is_reserved_track_name`).
+Built-in, ``gen-<digits>`` and ``gen-short-<digits>`` names are reserved: a user track of such
+a name could never be loaded, so ``tracks import``/``--save`` refuse them
+(:func:`is_reserved_track_name`).
 
 Built tracks are cached per process: sampling a segment track through highway-env lanes costs
 ~50 ms, and an env is made per episode in tests.
@@ -30,14 +32,18 @@ from platformdirs import user_data_dir
 
 from formula_tourney.errors import UserInputError
 from formula_tourney.safeio import is_safe_name
-from formula_tourney.sim.generate import MAX_SEED, generate_track
+from formula_tourney.sim.generate import GENERATED_KINDS, MAX_SEED, generated_track
 from formula_tourney.sim.segments import build_track, load_spec
 from formula_tourney.sim.torcs import load_torcs_track
 from formula_tourney.sim.track import Track
 
 BUILTIN_TRACKS = ("oval", "technical", "flowing")
-GENERATED_PATTERN = re.compile(r"^gen-([0-9]+)\Z")
-"""``gen-<digits>``: reserved for generated tracks (the seed's range is checked separately)."""
+GENERATED_PATTERN = re.compile(
+    r"^(" + "|".join(sorted(map(re.escape, GENERATED_KINDS), key=len, reverse=True))
+    + r")-([0-9]+)\Z"
+)
+"""``gen-<digits>``, ``gen-short-<digits>``: reserved for generated tracks (the seed's range is
+checked separately)."""
 TRACK_FILE_SUFFIXES = (".toml", ".xml")
 DATA_DIR_ENV = "FORMULA_TOURNEY_DATA_DIR"
 
@@ -59,7 +65,8 @@ def builtin_track_path(name: str) -> Path:
 
 
 def is_reserved_track_name(name: str) -> bool:
-    """True for names :func:`load_track` resolves before the user folder (built-in, gen-N)."""
+    """True for names :func:`load_track` resolves before the user folder (built-in, gen-N,
+    gen-short-N)."""
     return name in BUILTIN_TRACKS or GENERATED_PATTERN.match(name) is not None
 
 
@@ -71,6 +78,7 @@ class _Ref:
     name: str
     path: Path | None = None
     seed: int | None = None
+    prefix: str | None = None  # a generated track's kind (``gen``, ``gen-short``)
 
 
 def _looks_like_file(text: str) -> bool:
@@ -99,13 +107,13 @@ def _resolve(name: object, base_dir: Path | str | None) -> _Ref:
         return _Ref("file", str(resolved), path=resolved)
     match = GENERATED_PATTERN.match(text)
     if match:
-        seed = int(match.group(1))
+        prefix, seed = match.group(1), int(match.group(2))
         if seed > MAX_SEED:
             raise UserInputError(
-                f"track {text!r}: seed {match.group(1)} is out of range; gen-<seed> takes a "
-                f"seed in 0..{MAX_SEED}"
+                f"track {text!r}: seed {match.group(2)} is out of range; {prefix}-<seed> takes "
+                f"a seed in 0..{MAX_SEED}"
             )
-        return _Ref("generated", f"gen-{seed}", seed=seed)
+        return _Ref("generated", f"{prefix}-{seed}", seed=seed, prefix=prefix)
     if text in BUILTIN_TRACKS:
         return _Ref("builtin", text, path=builtin_track_path(text))
     if is_safe_name(text):
@@ -114,7 +122,7 @@ def _resolve(name: object, base_dir: Path | str | None) -> _Ref:
             return _Ref("user", text, path=user)
     raise UserInputError(
         f"unknown track {text!r}; known tracks: {', '.join(known_track_names())}; or "
-        "gen-<seed> for a generated track, or a path to a .toml/.xml file"
+        "gen-<seed> or gen-short-<seed> for a generated track, or a path to a .toml/.xml file"
     )
 
 
@@ -122,7 +130,8 @@ def check_track_name(name: str, base_dir: Path | None = None) -> str:
     """Validate a track reference without building the track; return its canonical form.
 
     Accepts exactly what :func:`load_track` accepts: a built-in or user track name,
-    ``gen-<seed>`` (seed in ``0..MAX_SEED``, returned without leading zeros), or an existing
+    ``gen-<seed>`` or ``gen-short-<seed>`` (seed in ``0..MAX_SEED``, returned without leading
+    zeros), or an existing
     ``.toml``/``.xml`` file (returned as an absolute path; relative paths resolve against
     ``base_dir``, else the current folder). Anything else -> UserInputError listing the known
     names. A track file (the user's or a path) is also built once (cached for the load that
@@ -136,12 +145,13 @@ def check_track_name(name: str, base_dir: Path | None = None) -> str:
 
 
 def load_track(name_or_path: str | os.PathLike | Track, base_dir: Path | None = None) -> Track:
-    """A Track from a built-in name, a user track, ``gen-<seed>``, or a .toml/.xml path."""
+    """A Track from a built-in name, a user track, ``gen-<seed>``, ``gen-short-<seed>``, or a
+    .toml/.xml path."""
     if isinstance(name_or_path, Track):
         return name_or_path
     ref = _resolve(name_or_path, base_dir)
     if ref.kind == "generated":
-        return _generated(ref.seed)
+        return _generated(ref.prefix, ref.seed)
     return _load_file(str(ref.path), ref.path.stat().st_mtime_ns)
 
 
@@ -154,8 +164,8 @@ def _load_file(path: str, _mtime_ns: int) -> Track:
 
 
 @lru_cache(maxsize=64)
-def _generated(seed: int) -> Track:
-    return generate_track(seed)
+def _generated(prefix: str, seed: int) -> Track:
+    return generated_track(prefix, seed)
 
 
 def _user_track_files() -> list[Path]:

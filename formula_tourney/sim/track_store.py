@@ -21,21 +21,23 @@ from formula_tourney.sim.track import Track
 
 
 def user_track_target(name: str, label: str, *, overwrite: bool = False,
-                      generated_seed: int | None = None) -> Path:
+                      generated_name: str | None = None) -> Path:
     """Path a user track ``name`` would be saved to; refuses bad, reserved and taken names.
 
-    Built-in names and ``gen-<digits>`` are reserved because ``load_track`` resolves them before
-    the user folder; ``generated_seed`` allows exactly ``gen-<that seed>`` (saving a generated
-    track under its own name stores the very track the name already loads).
+    Built-in names and generated names (``gen-<digits>``, ``gen-short-<digits>``) are reserved
+    because ``load_track`` resolves them before the user folder; ``generated_name`` allows
+    exactly that name (saving a generated track under its own name stores the very track the
+    name already loads).
     """
     check_name(name, "track name")
     if name in BUILTIN_TRACKS:
         raise UserInputError(
             f"{label}: {name!r} is reserved (a built-in track name); pick another --name"
         )
-    if is_reserved_track_name(name) and name != f"gen-{generated_seed}":
+    if is_reserved_track_name(name) and name != generated_name:
         raise UserInputError(
-            f"{label}: track name {name!r} is reserved for generated tracks (gen-<seed>); "
+            f"{label}: track name {name!r} is reserved for generated tracks (gen-<seed>, "
+            "gen-short-<seed>); "
             "pick another --name"
         )
     target = user_tracks_dir() / f"{name}.toml"
