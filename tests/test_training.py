@@ -337,6 +337,9 @@ def test_a_beyond_paper_setting_is_labelled_where_it_differs_from_its_preset(rin
     held = build_run_spec(variant="PER1M", train_tracks=["ringA"],
                           overrides={"brake_explore_hold_steps": 15})
     assert held.beyond_paper() == ["brake_explore_hold_steps 15"]
+    bounded = build_run_spec(variant="WIN1", train_tracks=["ringA"],
+                             overrides={"preact_penalty": 1.0, "preact_bound": [3, 6]})
+    assert bounded.beyond_paper() == ["preact_penalty 1", "preact_bound 3/6"]
 
 
 def test_paper_preset_is_the_registered_variant_and_others_are_labelled(ring_tracks) -> None:

@@ -361,11 +361,13 @@ class RunSpec(_Frozen):
         preset_agent = preset.agent_overrides(self.agent.family, named_settings(self.variant))
         base = {"agent": {**_DEFAULTS["agent"], **preset_agent},
                 "env": {**_DEFAULTS["env"], **preset.env}}
-        sections = {"agent": self.agent, "env": self.env}
-        return [_setting_label(key, getattr(sections[section], key))
+        # compared as JSON, as the defaults are: a pair is a tuple here and a list there
+        values = {"agent": self.agent.model_dump(mode="json"),
+                  "env": self.env.model_dump(mode="json")}  # fmt: skip
+        return [_setting_label(key, values[section][key])
                 for section in ("agent", "env")
                 for key, field in _SECTIONS[section].model_fields.items() if beyond_paper(field)
-                if getattr(sections[section], key) != base[section][key]]  # fmt: skip
+                if values[section][key] != base[section][key]]  # fmt: skip
 
     def to_json(self) -> dict[str, Any]:
         """Plain JSON data (what config.json, checkpoints and worker messages carry); the
@@ -396,11 +398,13 @@ class RunSpec(_Frozen):
 
 def _setting_label(key: str, value: Any) -> str:
     """``KEY VALUE`` for a number or a name, ``KEY`` for a switch that is on, ``no KEY`` for one
-    off."""
+    off, ``KEY A/B`` for a pair of numbers."""
     if isinstance(value, bool):
         return key if value else f"no {key}"
     if isinstance(value, str):
         return f"{key} {value}"
+    if isinstance(value, tuple | list):
+        return f"{key} {'/'.join(f'{v:g}' for v in value)}"
     return f"{key} {value:g}"
 
 
