@@ -121,6 +121,10 @@ def _off_default(field: FieldInfo) -> object:
         return not default
     if default is None:
         return -1.0
+    if isinstance(default, tuple):  # a pair of bounds
+        return tuple(v * 0.5 for v in default)
+    if default == 0.0:  # a weight that is off by default
+        return 1.0
     return default + 1 if isinstance(default, int) else default * 0.5
 
 
@@ -147,7 +151,7 @@ def test_a_familys_settings_are_its_own(algorithm: str, key: str) -> None:
 def test_each_setting_is_declared_once() -> None:
     """The shared settings and every family's own are disjoint, and AgentConfig is their union."""
     own = [k for family in ALGORITHMS.values() for k in family.settings.model_fields]
-    assert len(own) == len(set(own)) == 12
+    assert len(own) == len(set(own)) == 14
     assert not set(own) & set(SharedSettings.model_fields)
     assert set(AgentConfig.model_fields) == set(SharedSettings.model_fields) | set(own)
     assert all(AgentConfig.model_fields[k].description for k in AgentConfig.model_fields)
