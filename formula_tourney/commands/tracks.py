@@ -15,7 +15,7 @@ from formula_tourney.commands.output import emit, message, styled
 from formula_tourney.errors import UserInputError
 from formula_tourney.safeio import check_output_path
 from formula_tourney.sim.catalog import list_tracks, load_track, user_tracks_dir
-from formula_tourney.sim.generate import GENERATED_KINDS, generate_spec
+from formula_tourney.sim.generate import generated_spec
 from formula_tourney.sim.plot import check_plot_path, plot_tracks
 from formula_tourney.sim.track_store import (
     import_torcs_track,
@@ -212,7 +212,7 @@ def register(app: typer.Typer) -> None:
         own_name = f"{prefix}-{seed}"
         target = (user_track_target(name or own_name, "--save", overwrite=force,
                                     generated_name=own_name) if save else None)
-        spec, track = generate_spec(seed, name=name or own_name, **GENERATED_KINDS[prefix])
+        spec, track = generated_spec(prefix, seed, name)
         summary = track_summary(track)
         if target is not None:
             summary["saved"] = str(save_user_track(spec, target))

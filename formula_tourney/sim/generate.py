@@ -104,9 +104,15 @@ def generate_track(seed: int, **bounds: Any) -> Track:
     return generate_spec(seed, **bounds)[1]
 
 
+def generated_spec(prefix: str, seed: int, name: str | None = None) -> tuple[TrackSpec, Track]:
+    """Spec and track of ``<prefix>-<seed>``, a kind in :data:`GENERATED_KINDS`, named so unless
+    ``name`` is given (``tracks generate --save --name``)."""
+    return generate_spec(seed, name=name or f"{prefix}-{seed}", **GENERATED_KINDS[prefix])
+
+
 def generated_track(prefix: str, seed: int) -> Track:
-    """The track ``<prefix>-<seed>`` of a kind in :data:`GENERATED_KINDS`, named so."""
-    return generate_track(seed, name=f"{prefix}-{seed}", **GENERATED_KINDS[prefix])
+    """The track ``<prefix>-<seed>`` of a kind in :data:`GENERATED_KINDS`."""
+    return generated_spec(prefix, seed)[1]
 
 
 def _check_bounds(
