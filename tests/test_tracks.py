@@ -11,7 +11,12 @@ import pytest
 
 from formula_tourney.errors import UserInputError
 from formula_tourney.sim.catalog import check_track_name, load_track
-from formula_tourney.sim.generate import MAX_SEED, generate_spec, generate_track
+from formula_tourney.sim.generate import (
+    MAX_SEED,
+    generate_spec,
+    generate_track,
+    tight_corner_share,
+)
 from formula_tourney.sim.plot import plot_tracks
 from formula_tourney.sim.segments import (
     SegmentSpec,
@@ -156,14 +161,6 @@ def test_generated_track_loads_by_name_and_round_trips_through_toml():
     assert np.allclose(again.x_m, track.x_m, atol=1e-9)
 
 
-def _tight_share(track) -> float:
-    """Share of the lap whose centre line (curvature averaged over ~10 m) bends under 40 m."""
-    step_m = float(np.diff(track.s_m).mean())
-    window = max(1, int(10.0 / step_m))
-    bend = np.convolve(np.abs(track.curvature_1pm), np.ones(window) / window, mode="same")
-    return float((bend > 1.0 / 40.0).mean())
-
-
 def test_short_generated_tracks_are_short_valid_and_tighter():
     shares = {"gen": [], "gen-short": []}
     for seed in SEEDS:
@@ -174,12 +171,12 @@ def test_short_generated_tracks_are_short_valid_and_tighter():
         assert find_overlap(short) is None
         assert short.length_m == generate_track(seed, min_length_m=800.0,
                                                 max_length_m=1600.0).length_m
-        shares["gen-short"].append(_tight_share(short))
-        shares["gen"].append(_tight_share(load_track(f"gen-{seed}")))
+        shares["gen-short"].append(tight_corner_share(short))
+        shares["gen"].append(tight_corner_share(load_track(f"gen-{seed}")))
     # What the kind is for: tight corners take a technical-like share of the lap (technical:
     # 0.083), where a gen track's is a third of that.
     assert float(np.median(shares["gen-short"])) > 0.07 > 0.035 > float(np.median(shares["gen"]))
-    assert _tight_share(load_track("technical")) == pytest.approx(0.083, abs=0.002)
+    assert tight_corner_share(load_track("technical")) == pytest.approx(0.083, abs=0.002)
 
 
 def test_generator_bounds_are_respected_and_checked():

@@ -104,6 +104,15 @@ def generate_track(seed: int, **bounds: Any) -> Track:
     return generate_spec(seed, **bounds)[1]
 
 
+def tight_corner_share(track: Track, radius_m: float = 40.0, window_m: float = 10.0) -> float:
+    """Share of the lap whose centre line, its curvature averaged over ~``window_m``, bends
+    tighter than ``radius_m``: what :data:`GENERATED_KINDS` compares kinds and tracks by."""
+    step_m = float(np.diff(track.s_m).mean())
+    window = max(1, int(window_m / step_m))
+    bend = np.convolve(np.abs(track.curvature_1pm), np.ones(window) / window, mode="same")
+    return float((bend > 1.0 / radius_m).mean())
+
+
 def generated_spec(prefix: str, seed: int, name: str | None = None) -> tuple[TrackSpec, Track]:
     """Spec and track of ``<prefix>-<seed>``, a kind in :data:`GENERATED_KINDS`, named so unless
     ``name`` is given (``tracks generate --save --name``)."""
