@@ -88,6 +88,9 @@ def main() -> None:
         print(f"error: {exc}", file=sys.stderr)
         raise SystemExit(2) from exc
     limits = reference_limits(data.baselines)
+    if not limits:
+        print("note: no baseline has stored a reference limit yet (they run after the part's "
+              "jobs), so no lap is counted within the margin", file=sys.stderr)
     bots = best_bots(data.baselines)
     tests = metrics.at_grip(data.tests, 1.0)
     out: dict[str, Any] = {"benchmark": "general_driver", "tournament": str(args.tournament),
