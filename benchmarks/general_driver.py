@@ -54,7 +54,9 @@ def finite_or_none(value: Any) -> Any:
 def run_at_budget(tests: pd.DataFrame, train_track: str, tracks: list[str], rate: float,
                   limits: dict[str, float], cpu_s: float, within: float) -> dict[str, Any]:
     """One run's figures from its tests up to ``cpu_s`` CPU-seconds of training."""
-    seen = tests.loc[pd.to_numeric(tests["cpu_s"], errors="coerce") <= cpu_s]
+    # the whole run needs no CPU-s column (runs before it was stored have none)
+    seen = (tests if math.isinf(cpu_s)
+            else tests.loc[pd.to_numeric(tests["cpu_s"], errors="coerce") <= cpu_s])
     models = metrics.model_table(seen)
     pick = metrics.general_model(models, train_track, tracks, rate)
     unseen = [t for t in tracks if t != train_track]
@@ -98,7 +100,6 @@ def main() -> None:
     for budget in budgets:
         runs = []
         fastest: dict[str, list[float]] = {}
-        tracks: list[str] = []
         for _, job in data.jobs.sort_values(["part", "seed"]).iterrows():
             rows = tests.loc[tests["job_id"] == job["job_id"]]
             if rows.empty:

@@ -9,6 +9,8 @@ import math
 from pathlib import Path
 
 import pandas as pd
+import pytest
+from report_fixtures import build_generated_tournament
 
 _PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "general_driver.py"
 _SPEC = importlib.util.spec_from_file_location("general_driver", _PATH)
@@ -52,3 +54,27 @@ def test_a_run_without_a_clean_lap_counts_zero_and_the_line_is_strict_json() -> 
     assert (fig["episode"], fig["lapped"], fig["within"]) == (None, 0, 0)
     line = json.dumps(gd.finite_or_none({"a": [math.nan, 1.0], "b": math.inf}))
     assert json.loads(line) == {"a": [None, 1.0], "b": None}
+
+
+def test_the_benchmark_reads_a_tournament_as_the_report_does(tmp_path: Path, capsys,
+                                                             monkeypatch) -> None:
+    root = build_generated_tournament(tmp_path)
+    monkeypatch.setattr("sys.argv", ["general_driver.py", str(root)])
+    gd.main()
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    (whole,) = out["budgets"]
+    # seed 0 laps the oval and flowing from episode 200 on, fastest at 300; seed 1 never laps
+    assert [(r["seed"], r["episode"], r["lapped"]) for r in whole["runs"]] == [
+        (0, 300, 2), (1, None, 0)]
+    assert whole["median_lapped"] == 1.0
+    assert whole["fastest_any"]["flowing"]["lap_s"] == 79.0
+    assert whole["fastest_any"]["technical"]["runs_lapping"] == 0
+    assert whole["goal_met"] is False  # no baselines here: no limit, so no lap counts near it
+
+
+def test_a_missing_tournament_is_a_one_line_error(tmp_path: Path, capsys, monkeypatch) -> None:
+    monkeypatch.setattr("sys.argv", ["general_driver.py", str(tmp_path / "nothing")])
+    with pytest.raises(SystemExit) as exc:
+        gd.main()
+    assert exc.value.code == 2
+    assert capsys.readouterr().err.startswith("error: ")
