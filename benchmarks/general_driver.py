@@ -108,7 +108,9 @@ def main() -> None:
             train = job["train_tracks"][0] if job["train_tracks"] else ""
             rate = data.unseen_finish_rate([str(job["part"])])
             fig = run_at_budget(rows, train, tracks, rate, limits, budget, args.within)
-            runs.append({"job": str(job["job_id"]), "seed": int(job["seed"]), **fig})
+            cpu_s = float(pd.to_numeric(rows["cpu_s"], errors="coerce").max())
+            runs.append({"job": str(job["job_id"]), "seed": int(job["seed"]),
+                         "cpu_s_at_last_test": cpu_s, **fig})
             for t, lap in fig["fastest_s"].items():
                 fastest.setdefault(t, []).append(lap)
         label = "all" if math.isinf(budget) else f"{budget:g} CPU-s"
@@ -128,6 +130,8 @@ def main() -> None:
                      if math.isfinite(lap) else "no clean lap")
             print(f"  {t}: {shown}, by {best_any[t]['runs_lapping']} of {len(laps)} runs; "
                   f"best bot {best_any[t]['best_bot_s']:.2f} s", file=sys.stderr)
+        print(f"  training CPU-s at the runs' last tests: "
+              f"{sum(r['cpu_s_at_last_test'] for r in runs):.0f}", file=sys.stderr)
         lapped = [r["lapped"] for r in runs]
         within = [r["within"] for r in runs]
         out["budgets"].append({
