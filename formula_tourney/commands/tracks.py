@@ -15,7 +15,7 @@ from formula_tourney.commands.output import emit, message, styled
 from formula_tourney.errors import UserInputError
 from formula_tourney.safeio import check_output_path
 from formula_tourney.sim.catalog import list_tracks, load_track, user_tracks_dir
-from formula_tourney.sim.generate import generated_spec
+from formula_tourney.sim.generate import GENERATED_FORMS, generated_name, generated_spec
 from formula_tourney.sim.plot import check_plot_path, plot_tracks
 from formula_tourney.sim.track_store import (
     import_torcs_track,
@@ -132,8 +132,7 @@ def register(app: typer.Typer) -> None:
                 table.add_row(row["name"], f"{row['length_m'] / 1000:.3f}",
                               f"{row['width_m']:g}", row["source"])
             console.print(table)
-            console.print(f"user tracks folder: {folder}; generated: gen-<seed>, "
-                          "gen-short-<seed>")
+            console.print(f"user tracks folder: {folder}; generated: {GENERATED_FORMS}")
 
         emit({"tracks": rows, "user_tracks_dir": folder}, as_json, render)
 
@@ -209,7 +208,7 @@ def register(app: typer.Typer) -> None:
         if plot is not None:
             check_output_path(check_plot_path(plot), "--plot")
         prefix = "gen-short" if short else "gen"
-        own_name = f"{prefix}-{seed}"
+        own_name = generated_name(prefix, seed)
         target = (user_track_target(name or own_name, "--save", overwrite=force,
                                     generated_name=own_name) if save else None)
         spec, track = generated_spec(prefix, seed, name)

@@ -32,7 +32,13 @@ from platformdirs import user_data_dir
 
 from formula_tourney.errors import UserInputError
 from formula_tourney.safeio import is_safe_name
-from formula_tourney.sim.generate import GENERATED_KINDS, MAX_SEED, generated_track
+from formula_tourney.sim.generate import (
+    GENERATED_FORMS,
+    GENERATED_KINDS,
+    MAX_SEED,
+    generated_name,
+    generated_track,
+)
 from formula_tourney.sim.segments import build_track, load_spec
 from formula_tourney.sim.torcs import load_torcs_track
 from formula_tourney.sim.track import Track
@@ -113,7 +119,7 @@ def _resolve(name: object, base_dir: Path | str | None) -> _Ref:
                 f"track {text!r}: seed {match.group(2)} is out of range; {prefix}-<seed> takes "
                 f"a seed in 0..{MAX_SEED}"
             )
-        return _Ref("generated", f"{prefix}-{seed}", seed=seed, prefix=prefix)
+        return _Ref("generated", generated_name(prefix, seed), seed=seed, prefix=prefix)
     if text in BUILTIN_TRACKS:
         return _Ref("builtin", text, path=builtin_track_path(text))
     if is_safe_name(text):
@@ -122,7 +128,7 @@ def _resolve(name: object, base_dir: Path | str | None) -> _Ref:
             return _Ref("user", text, path=user)
     raise UserInputError(
         f"unknown track {text!r}; known tracks: {', '.join(known_track_names())}; or "
-        "gen-<seed> or gen-short-<seed> for a generated track, or a path to a .toml/.xml file"
+        f"{GENERATED_FORMS} for a generated track, or a path to a .toml/.xml file"
     )
 
 

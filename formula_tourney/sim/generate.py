@@ -58,6 +58,9 @@ sets beside the defaults. ``gen-short`` laps are 0.8-1.6 km with as many corners
 radius against ``gen``'s ~3 %, as on the slow tracks (technical 8 %, aalborg 16 %), which a
 driver trained on ``gen`` tracks alone sees too seldom."""
 
+GENERATED_FORMS = " or ".join(f"{prefix}-<seed>" for prefix in GENERATED_KINDS)
+"""The generated names as messages list them: ``gen-<seed> or gen-short-<seed>``."""
+
 
 def generate_spec(
     seed: int,
@@ -113,10 +116,16 @@ def tight_corner_share(track: Track, radius_m: float = 40.0, window_m: float = 1
     return float((bend > 1.0 / radius_m).mean())
 
 
+def generated_name(prefix: str, seed: int) -> str:
+    """The name ``<prefix>-<seed>`` that loads the generated track of that kind and seed."""
+    return f"{prefix}-{seed}"
+
+
 def generated_spec(prefix: str, seed: int, name: str | None = None) -> tuple[TrackSpec, Track]:
     """Spec and track of ``<prefix>-<seed>``, a kind in :data:`GENERATED_KINDS`, named so unless
     ``name`` is given (``tracks generate --save --name``)."""
-    return generate_spec(seed, name=name or f"{prefix}-{seed}", **GENERATED_KINDS[prefix])
+    return generate_spec(seed, name=name or generated_name(prefix, seed),
+                         **GENERATED_KINDS[prefix])
 
 
 def generated_track(prefix: str, seed: int) -> Track:

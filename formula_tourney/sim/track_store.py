@@ -15,6 +15,7 @@ import numpy as np
 from formula_tourney.errors import UserInputError
 from formula_tourney.safeio import atomic_write_text, check_name
 from formula_tourney.sim.catalog import BUILTIN_TRACKS, is_reserved_track_name, user_tracks_dir
+from formula_tourney.sim.generate import GENERATED_FORMS
 from formula_tourney.sim.segments import TrackSpec, build_track, parse_spec, spec_to_toml
 from formula_tourney.sim.torcs import build_torcs_spec, read_torcs_spec
 from formula_tourney.sim.track import Track
@@ -36,9 +37,8 @@ def user_track_target(name: str, label: str, *, overwrite: bool = False,
         )
     if is_reserved_track_name(name) and name != generated_name:
         raise UserInputError(
-            f"{label}: track name {name!r} is reserved for generated tracks (gen-<seed>, "
-            "gen-short-<seed>); "
-            "pick another --name"
+            f"{label}: track name {name!r} is reserved for generated tracks "
+            f"({GENERATED_FORMS}); pick another --name"
         )
     target = user_tracks_dir() / f"{name}.toml"
     if target.exists() and not overwrite:
