@@ -20,7 +20,6 @@ import argparse  # noqa: E402
 import json  # noqa: E402
 
 import numpy as np  # noqa: E402
-import torch  # noqa: E402
 
 from formula_tourney.agents.buffers import ObservationWindow  # noqa: E402
 from formula_tourney.training.envs import RunEnvs  # noqa: E402
@@ -40,14 +39,12 @@ def main() -> None:
     obs, info = env.reset(seed=0, options={"start_s_m": start})
     window = ObservationWindow(agent.cfg.window)
     stack, zs = window.reset(obs), []
-    actor = agent._eval_actor  # the actor a test drives (the average where one is kept)
-    with torch.no_grad():
-        while True:
-            zs.append(actor.preactivation(agent._window_tensor(stack))[0].cpu().numpy())
-            obs, _, terminated, truncated, info = env.step(agent.act_eval(stack))
-            if terminated or truncated:
-                break
-            stack = window.push(obs)
+    while True:  # the actor a test drives (the average where one is kept)
+        zs.append(agent.eval_preactivation(stack))
+        obs, _, terminated, truncated, info = env.step(agent.act_eval(stack))
+        if terminated or truncated:
+            break
+        stack = window.push(obs)
     z = np.asarray(zs)
     names = ["steer", "throttle", "brake"] if z.shape[1] == 3 else ["steer", "pedal"]
     out = {name: {"percentiles_1_10_50_90_99": np.round(np.percentile(z[:, i],

@@ -263,6 +263,28 @@ def test_saturation_term_frees_an_actor_stuck_at_full_lock() -> None:
     assert abs(_saturated_steer_after(2000, preact_penalty=1.0)) < 0.25
 
 
+@pytest.mark.parametrize("extra", [{}, {"eval_ema_updates": 50}])
+def test_eval_preactivation_is_what_the_tested_actor_squashes(extra: dict) -> None:
+    """The pre-activations a benchmark reads are the driven actor's: squashed, they give
+    act_eval's action, also when the tests drive an average that has moved off the online
+    actor."""
+    cfg = get_variant("WIN1", {**SMALL, "buffer_size": 1000, **extra})
+    agent = make_agent(cfg, D, seed=2)
+    buf = _buffer_for(cfg, seed=2)
+    for _ in range(20):
+        agent.update(buf.sample(16), buf)
+    window = np.random.default_rng(0).standard_normal((1, D)).astype(np.float32)
+    z = agent.eval_preactivation(window)
+    squashed = agent._eval_actor.squash(torch.as_tensor(z)[None])[0].numpy()
+    np.testing.assert_allclose(squashed, agent.act_eval(window), rtol=1e-5, atol=1e-6)
+    with torch.no_grad():
+        online = agent.actor.preactivation(torch.as_tensor(window)[None])[0].numpy()
+    if extra:  # the average lags the online actor: a read of the online one would differ
+        assert np.abs(online - z).max() > 1e-4
+    else:
+        np.testing.assert_allclose(online, z, rtol=1e-6)
+
+
 @pytest.mark.parametrize("name", ["WIN4", "LSTM4"])
 def test_q_pair_equals_two_critic_evaluations(name: str) -> None:
     """The shared-state-path evaluation gives exactly Q(s, a) and Q(s, mu(s))."""

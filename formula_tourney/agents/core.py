@@ -366,6 +366,15 @@ class Agent:
         ``cfg.eval_ema_updates`` keeps one, of the online actor otherwise (the paper's)."""
         return self._greedy_action(self._eval_actor, self._greedy_eval, obs_window)
 
+    def eval_preactivation(self, obs_window: np.ndarray) -> np.ndarray:
+        """The output layer's pre-activations (before tanh / sigmoid) of the actor
+        :meth:`act_eval` drives, for one window: how far into its squashing each output sits
+        (``benchmarks/actor_saturation.py``; the DDPG family's ``preact_penalty`` bounds them)."""
+        if not isinstance(self._eval_actor, Actor):
+            raise TypeError(f"{type(self._eval_actor).__name__} has no pre-activation to read")
+        with torch.no_grad():
+            return self._eval_actor.preactivation(self._window_tensor(obs_window))[0].cpu().numpy()
+
     def _greedy_action(
         self, actor: nn.Module, greedy: GreedyAct | None, obs_window: np.ndarray
     ) -> np.ndarray:
