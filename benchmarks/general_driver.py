@@ -12,6 +12,7 @@ the figures of every shorter budget), and the limits and bots are those its base
 A miss (no general model) counts as 0 tracks. Per track it also gives the fastest clean lap of
 any checkpoint of any run, and against the best bot. The last line is one JSON object with the
 medians over the runs and the goal: every unseen track lapped, each within 15 % of its limit.
+It also gives the training CPU-s and env steps each run had reached at its last test.
 """
 
 from __future__ import annotations
@@ -26,18 +27,13 @@ import numpy as np
 import pandas as pd
 
 from formula_tourney.errors import UserInputError
+from formula_tourney.report.competence_table import part_bots
 from formula_tourney.report.load import load_tournament
 from formula_tourney.report.paper_tables import reference_limits
 from formula_tourney.results import metrics
 
 GOAL_WITHIN = 1.15
 """The issue's margin: a general model's lap counts when it is within 15 % of the limit."""
-
-
-def best_bots(baselines: pd.DataFrame) -> dict[str, float]:
-    """The fastest finished bot lap per track (s), over every bot and line the part ran."""
-    done = baselines.loc[baselines["finished"] & baselines["best_lap_s"].notna()]
-    return {str(t): float(g["best_lap_s"].min()) for t, g in done.groupby("track")}
 
 
 def finite_or_none(value: Any) -> Any:
@@ -93,13 +89,13 @@ def main() -> None:
     if not limits:
         print("note: no baseline has stored a reference limit yet (they run after the part's "
               "jobs), so no lap is counted within the margin", file=sys.stderr)
-    bots = best_bots(data.baselines)
     tests = metrics.at_grip(data.tests, 1.0)
     out: dict[str, Any] = {"benchmark": "general_driver", "tournament": str(args.tournament),
                            "within": args.within, "budgets": []}
     for budget in budgets:
         runs = []
         fastest: dict[str, list[float]] = {}
+        parts: list[str] = []
         for _, job in data.jobs.sort_values(["part", "seed"]).iterrows():
             rows = tests.loc[tests["job_id"] == job["job_id"]]
             if rows.empty:
@@ -108,9 +104,12 @@ def main() -> None:
             train = job["train_tracks"][0] if job["train_tracks"] else ""
             rate = data.unseen_finish_rate([str(job["part"])])
             fig = run_at_budget(rows, train, tracks, rate, limits, budget, args.within)
-            cpu_s = float(pd.to_numeric(rows["cpu_s"], errors="coerce").max())
+            parts.append(str(job["part"]))
+            last = {col: float(pd.to_numeric(rows[col], errors="coerce").max())
+                    for col in ("cpu_s", "env_steps")}  # fmt: skip
             runs.append({"job": str(job["job_id"]), "seed": int(job["seed"]),
-                         "cpu_s_at_last_test": cpu_s, **fig})
+                         "cpu_s_at_last_test": last["cpu_s"],
+                         "env_steps_at_last_test": last["env_steps"], **fig})
             for t, lap in fig["fastest_s"].items():
                 fastest.setdefault(t, []).append(lap)
         label = "all" if math.isinf(budget) else f"{budget:g} CPU-s"
@@ -118,14 +117,18 @@ def main() -> None:
         for run in runs:
             laps = ", ".join(f"{t} {r:.3f}" for t, r in run["ratios"].items()) or "none"
             print(f"  seed {run['seed']}: {run['lapped']} lapped, {run['within']} within "
-                  f"{args.within:g} x the limit (episode {run['episode']}): {laps}",
+                  f"{args.within:g} x the limit (episode {run['episode']}): {laps}; "
+                  f"{run['env_steps_at_last_test']:.0f} env steps at the run's last test",
                   file=sys.stderr)
         best_any = {}
         for t, laps in fastest.items():
+            # the best bot as every benchmark has it: the follower on the min-curvature line
+            bots = [b.mincurv_s for p in dict.fromkeys(parts)
+                    if (b := part_bots(data.baselines, p, t)) is not None]  # fmt: skip
             lap = float(np.nanmin(laps)) if np.isfinite(laps).any() else math.nan
             best_any[t] = {"lap_s": lap, "ratio": metrics.limit_ratio(lap, limits.get(t, math.nan)),
                            "runs_lapping": int(np.isfinite(laps).sum()),
-                           "best_bot_s": bots.get(t, math.nan)}
+                           "best_bot_s": min(bots, default=math.nan)}
             shown = (f"fastest clean lap {lap:.2f} s ({best_any[t]['ratio']:.3f} x the limit)"
                      if math.isfinite(lap) else "no clean lap")
             print(f"  {t}: {shown}, by {best_any[t]['runs_lapping']} of {len(laps)} runs; "

@@ -67,6 +67,7 @@ def test_the_benchmark_reads_a_tournament_as_the_report_does(tmp_path: Path, cap
     assert [(r["seed"], r["episode"], r["lapped"]) for r in whole["runs"]] == [
         (0, 300, 2), (1, None, 0)]
     assert whole["median_lapped"] == 1.0
+    assert [r["env_steps_at_last_test"] for r in whole["runs"]] == [45000, 45000]  # episode 300
     assert whole["fastest_any"]["flowing"]["lap_s"] == 79.0
     assert whole["fastest_any"]["technical"]["runs_lapping"] == 0
     assert whole["goal_met"] is False  # no baselines here: no limit, so no lap counts near it
