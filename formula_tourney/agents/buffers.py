@@ -231,6 +231,10 @@ class ReplayBuffer:
             getattr(self, name)[slots] = np.asarray(state[name])
         self.rng.bit_generator.state = state["rng"]
 
+    def stored_observations(self) -> np.ndarray:
+        """Every stored transition's observation ``(len, obs_dim)``, in slot order."""
+        return self.obs[self._filled_slots()]
+
     def _filled_slots(self) -> np.ndarray:
         """The slots holding a transition: a prefix of a filling one-lane buffer, each lane's
         own prefix with lanes (lanes fill from their base)."""

@@ -83,6 +83,8 @@ def load_checkpoint(path: str | Path, device: str = "cpu") -> tuple[Agent, dict[
     wanted = family.checkpoint_keys
     if cfg.eval_ema_updates:
         wanted += ("actor_eval",)
+    if cfg.obs_norm:
+        wanted += ("obs_norm",)
     missing = [k for k in wanted if k not in state]
     if missing:
         raise UserInputError(

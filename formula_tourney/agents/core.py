@@ -40,6 +40,7 @@ from formula_tourney.agents.buffers import ReplayBatch
 from formula_tourney.agents.mlp_update import BCLoss, MLPUpdate, Saturation
 from formula_tourney.agents.networks import Actor, GreedyAct, MLPCritic
 from formula_tourney.agents.noise import action_box
+from formula_tourney.agents.obs_norm import RunningObsNorm
 from formula_tourney.errors import UserInputError
 
 
@@ -229,6 +230,8 @@ class Agent:
         self.obs_dim = int(obs_dim)
         self.action_dim = int(action_dim)
         self.device = resolve_device(device)
+        # cfg.obs_norm: every input of actor and critics passes the running statistics' map
+        self.obs_norm = RunningObsNorm(self.obs_dim, self.device) if cfg.obs_norm else None
         self.actor_window = self._actor_window()
         self.actor: nn.Module = self._make_actor().to(self.device)
         self.critic: nn.Module = self._make_critic().to(self.device)
@@ -380,9 +383,18 @@ class Agent:
     ) -> np.ndarray:
         """``actor``'s greedy action: through its hand-written forward where it has one."""
         if greedy is not None:
+            if self.obs_norm is not None:
+                obs_window = self.obs_norm.apply_np(obs_window)
             return greedy(obs_window)
         with torch.no_grad():
             return actor(self._window_tensor(obs_window))[0].cpu().numpy()
+
+    def act_batch(self, obs_windows: np.ndarray) -> np.ndarray:
+        """Greedy actions of the online actor for a batch of windows ``(cars, w, obs_dim)`` in
+        one forward pass (the training loop's cars)."""
+        with torch.no_grad():
+            x = self.normalise(torch.from_numpy(obs_windows).to(self.device))
+            return self.actor(x).cpu().numpy()
 
     def explore(self, obs_window: np.ndarray) -> np.ndarray:
         """The training loop's action for one window: the greedy action, to which the loop adds
@@ -392,7 +404,18 @@ class Agent:
     def _window_tensor(self, obs_window: np.ndarray) -> torch.Tensor:
         """One window ``(w, obs_dim)`` as a batch of one ``(1, w, obs_dim)`` on the device."""
         x = torch.as_tensor(obs_window, dtype=torch.float32, device=self.device)
-        return x.reshape(1, -1, self.obs_dim)
+        return self.normalise(x.reshape(1, -1, self.obs_dim))
+
+    def normalise(self, observations: torch.Tensor) -> torch.Tensor:
+        """Observations (last axis ``obs_dim``) as the networks read them: through the running
+        statistics with ``cfg.obs_norm``, unchanged otherwise."""
+        return observations if self.obs_norm is None else self.obs_norm.apply(observations)
+
+    def count_observations(self, observations: np.ndarray) -> None:
+        """Add ``observations`` ``(k, obs_dim)`` to the running statistics (``cfg.obs_norm``;
+        nothing otherwise). The entrant counts each stored transition's observation once."""
+        if self.obs_norm is not None:
+            self.obs_norm.update(observations)
 
     # --- learning -------------------------------------------------------------------------------
     _MLP_FIELDS = ("observations", "actions", "rewards", "next_observations", "discounts",
@@ -403,9 +426,12 @@ class Agent:
         self, batch: ReplayBatch, names: tuple[str, ...] = _LSTM_FIELDS
     ) -> dict[str, torch.Tensor]:
         tensors = {n: torch.from_numpy(getattr(batch, n)) for n in names}
-        if self.device.type == "cpu":  # zero-copy views of the batch's arrays
-            return tensors
-        return {n: t.to(self.device, non_blocking=True) for n, t in tensors.items()}
+        if self.device.type != "cpu":  # on the CPU: zero-copy views of the batch's arrays
+            tensors = {n: t.to(self.device, non_blocking=True) for n, t in tensors.items()}
+        if self.obs_norm is not None:  # with the statistics of this update
+            for n in ("observations", "next_observations"):
+                tensors[n] = self.obs_norm.apply(tensors[n])
+        return tensors
 
     def update(
         self, batch: ReplayBatch, per_buffer: Any | None = None, bc: BCLoss | None = None
@@ -544,8 +570,9 @@ class Agent:
     def state_dict(self) -> dict[str, Any]:
         """Everything to resume or evaluate; only tensors and plain types (weights_only loads).
 
-        Keys beyond :data:`CHECKPOINT_KEYS` are the family's (``checkpoint_keys``), and
-        ``actor_eval``, the tests' averaged actor, when ``cfg.eval_ema_updates``.
+        Keys beyond :data:`CHECKPOINT_KEYS` are the family's (``checkpoint_keys``),
+        ``actor_eval``, the tests' averaged actor, when ``cfg.eval_ema_updates``, and
+        ``obs_norm``, the observation statistics, when ``cfg.obs_norm``.
         """
         state: dict[str, Any] = {
             "format": CHECKPOINT_FORMAT,
@@ -560,6 +587,8 @@ class Agent:
             state["actor_target"] = self.actor_target.state_dict()
         if self.actor_eval is not None:
             state["actor_eval"] = self.actor_eval.state_dict()
+        if self.obs_norm is not None:
+            state["obs_norm"] = self.obs_norm.state_dict()
         state["critic_target"] = self.critic_target.state_dict()
         state["actor_opt"] = self.actor_opt.state_dict()
         state["critic_opt"] = self.critic_opt.state_dict()
@@ -575,6 +604,8 @@ class Agent:
             self.actor_target.load_state_dict(state["actor_target"])
         if self.actor_eval is not None:
             self.actor_eval.load_state_dict(state["actor_eval"])
+        if self.obs_norm is not None:
+            self.obs_norm.load_state_dict(state["obs_norm"])
         self.critic_target.load_state_dict(state["critic_target"])
         self.actor_opt.load_state_dict(state["actor_opt"])
         self.critic_opt.load_state_dict(state["critic_opt"])

@@ -162,6 +162,8 @@ class FamilyEntrant:
         with ``bc_weight`` (0: not at all), and first run ``warm_start`` on the agent (the
         loop's behaviour cloning); returns its (MSE before, after) or None."""
         self._set_demonstrations(demos, demo_rows, bc_weight, bc_q_filter)
+        if self.cfg.obs_norm:  # the warm start and the first updates read demonstrated states
+            self.agent.count_observations(demos.stored_observations())
         return warm_start(self.agent) if warm_start is not None else None
 
     def _set_demonstrations(
@@ -197,8 +199,7 @@ class FamilyEntrant:
             return np.stack([agent.explore(w) for w in windows])
         if self.cars == 1:
             return self.noises[0](agent.act(windows[0]), self.epsilon)[0][None]
-        with torch.no_grad():
-            greedy = agent.actor(torch.from_numpy(windows).to(agent.device)).cpu().numpy()
+        greedy = agent.act_batch(windows)
         return np.stack([self.noises[car](greedy[car], self.epsilon)[0]
                          for car in range(self.cars)])  # fmt: skip
 
@@ -210,6 +211,8 @@ class FamilyEntrant:
         assert self.buffer is not None, "a driving-only entrant learns nothing"
         self._stored = len(transitions)
         store_transitions(self.buffer, transitions)
+        if self.cfg.obs_norm and transitions:
+            self.agent.count_observations(np.stack([t.obs for t in transitions]))
 
     def update(self, env_steps: int) -> dict[str, float]:
         """Earn updates for the step's stored transitions and spend them; the last update's

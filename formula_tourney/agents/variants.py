@@ -116,6 +116,14 @@ class SharedSettings(BaseModel):
         "backend has no norm). Not with lstm_critic, nor CrossQ's batch-norm critics.",
         json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
     )
+    obs_norm: bool = Field(
+        False,
+        description="Beyond the paper: every observation value is standardised by the running "
+        "mean and standard deviation of all observations stored so far, in acting, tests and "
+        "updates alike (agents/obs_norm.py); a checkpoint carries the statistics it drives "
+        "with. Off: the sensors' fixed scaling alone, as the paper.",
+        json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
+    )
     learning_starts: int = Field(
         1_000, ge=0, description="Environment steps of pure exploration before updates begin."
     )

@@ -191,7 +191,7 @@ def behaviour_clone(
     everything = demos.gather(np.arange(len(demos)), np.ones(len(demos)))
 
     def mse(observations: np.ndarray, actions: np.ndarray) -> torch.Tensor:
-        obs = torch.from_numpy(observations).to(device)
+        obs = agent.normalise(torch.from_numpy(observations).to(device))
         target = torch.from_numpy(actions).to(device)
         return (actor(obs) - target).square().mean()
 
