@@ -123,6 +123,8 @@ def _off_default(field: FieldInfo) -> object:
         return -1.0
     if isinstance(default, tuple):  # a pair of bounds
         return tuple(v * 0.5 for v in default)
+    if isinstance(default, int) and default == 0:  # a count that is off by default
+        return 2
     if default == 0.0:  # a weight that is off by default
         return 1.0
     return default + 1 if isinstance(default, int) else default * 0.5
@@ -140,7 +142,10 @@ def test_a_familys_settings_are_its_own(algorithm: str, key: str) -> None:
     """Set by the same flat key on a variant of its family, refused on every other family's."""
     value = _off_default(ALGORITHMS[algorithm].settings.model_fields[key])
     for name, variant in ALL_VARIANTS.items():
-        if variant.algorithm == algorithm:
+        if key == "critic_bins" and variant.lstm_critic:  # the MLP critic's alone
+            with pytest.raises(UserInputError, match="not lstm_critic"):
+                get_variant(name, {key: value})
+        elif variant.algorithm == algorithm:
             assert getattr(get_variant(name, {key: value}), key) == value
         else:
             message = f"{key} apply to algorithm {algorithm} only, not {variant.algorithm}"
@@ -151,7 +156,7 @@ def test_a_familys_settings_are_its_own(algorithm: str, key: str) -> None:
 def test_each_setting_is_declared_once() -> None:
     """The shared settings and every family's own are disjoint, and AgentConfig is their union."""
     own = [k for family in ALGORITHMS.values() for k in family.settings.model_fields]
-    assert len(own) == len(set(own)) == 14
+    assert len(own) == len(set(own)) == 16
     assert not set(own) & set(SharedSettings.model_fields)
     assert set(AgentConfig.model_fields) == set(SharedSettings.model_fields) | set(own)
     assert all(AgentConfig.model_fields[k].description for k in AgentConfig.model_fields)

@@ -286,7 +286,7 @@ class Agent:
         # critic; every other family and pair of networks updates through autograd
         self._mlp_update: MLPUpdate | None = None
         mlp_nets = (isinstance(self.critic, MLPCritic) and not self.critic.layer_norm
-                    and isinstance(self.actor, Actor))  # fmt: skip
+                    and self.critic.bins == 1 and isinstance(self.actor, Actor))  # fmt: skip
         if self.mlp_backend and mlp_nets:
             assert self.actor_target is not None
             self._mlp_update = MLPUpdate(
@@ -343,8 +343,14 @@ class Agent:
         """The actor's action at ``obs`` for the actor loss, and its log-probability (or None)."""
         return self.actor(obs), None
 
+    def critic_loss(self, q: torch.Tensor, y: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+        """L(Q): the weighted mean squared TD error (twins: the mean of L(Q_1), L(Q_2)); a
+        family with another loss of its critic's outputs (a classification critic) overrides
+        it."""
+        return (weights * (y - q).square()).mean()
+
     def critic_objective(self, critic_loss: torch.Tensor) -> torch.Tensor:
-        """What the critic parameters descend, from the (mean) weighted squared TD error."""
+        """What the critic parameters descend, from the (mean) weighted critic loss."""
         raise NotImplementedError
 
     def actor_loss(self, q_pi: torch.Tensor, log_pi: torch.Tensor | None) -> torch.Tensor:
@@ -493,7 +499,7 @@ class Agent:
         actions = b["actions"].requires_grad_(cfg.prioritized)
         q, y, policy_action, log_pi, q_pi = self._critic_values(b, actions, step_actor)
         td = y - q
-        critic_loss = (b["weights"] * td.square()).mean()  # twins: the mean of L(Q_1), L(Q_2)
+        critic_loss = self.critic_loss(q, y, b["weights"])
         q_1, td_1 = (q[0], td[0]) if self.twin_critics else (q, td)
         if cfg.prioritized:  # the priority needs grad_a Q(s_i, a_i) at the stored action
             (grad_a,) = torch.autograd.grad(q_1.sum(), actions, retain_graph=True)

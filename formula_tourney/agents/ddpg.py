@@ -18,17 +18,20 @@ unstable). With the MLP critic the update runs through the hand-written backend
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Any
 
 import torch
-from pydantic import Field
+from pydantic import Field, model_validator
 from torch import nn
 
 from formula_tourney.agents.core import Agent, FamilySettings
-from formula_tourney.agents.networks import Actor, LSTMCritic, MLPCritic
+from formula_tourney.agents.networks import Actor, LSTMCritic, MLPCritic, hl_gauss_targets
 from formula_tourney.field_marks import marks
 
 PreactBound = Annotated[float, Field(gt=0.0, le=50.0)]
+ValueBound = Annotated[float, Field(ge=-1e6, le=1e6)]
+HL_GAUSS_SIGMA_BINS = 0.75
+"""The histogram loss's spread in bin widths: Farebrother et al.'s (2024) recommended ratio."""
 
 
 class DDPGSettings(FamilySettings):
@@ -74,6 +77,40 @@ class DDPGSettings(FamilySettings):
     )
 
 
+    critic_bins: int = Field(
+        0,
+        ge=0,
+        le=1001,
+        description="Beyond the paper: 0, the paper's critic (one output, squared TD error), "
+        "or 2..1001: a classification critic (Farebrother et al. 2024) with this many logits "
+        "over equal bins spanning critic_value_range; Q is the softmax's mean of the bin "
+        "centres, and the critic descends the cross-entropy to the target's HL-Gauss "
+        "histogram (a normal of 0.75 bin widths around y), which holds up where the targets "
+        "are noisy or bimodal (a braking point that is made or crashed). DDPG then updates "
+        "through autograd. Not with lstm_critic.",
+        json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
+    )
+    critic_value_range: tuple[ValueBound, ValueBound] = Field(
+        (-100.0, 100.0),
+        description="Beyond the paper: the lowest and highest Q the classification critic "
+        "(critic_bins) represents; targets outside are clipped into it. Q of the `best` "
+        "reward on the built-in tracks stays within about -20..40.",
+        json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
+    )
+
+    @model_validator(mode="after")
+    def _bins(self) -> DDPGSettings:
+        if self.critic_bins == 1:
+            raise ValueError("critic_bins: 0 (the paper's critic) or 2..1001 bins, not 1")
+        low, high = self.critic_value_range
+        if not low < high:
+            raise ValueError(f"critic_value_range: the low end {low} must be below the high "
+                             f"end {high}")  # fmt: skip
+        if self.critic_bins and self.lstm_critic:
+            raise ValueError("critic_bins applies to the MLP critic, not lstm_critic")
+        return self
+
+
 class DDPGAgent(Agent):
     """The paper's DDPG (Lillicrap et al.) with its variants."""
 
@@ -93,7 +130,8 @@ class DDPGAgent(Agent):
             return LSTMCritic(self.obs_dim, self.action_dim, cfg.window, cfg.lstm_state_units,
                               cfg.lstm_hidden, cfg.hidden[1])  # fmt: skip
         return MLPCritic(self.obs_dim, self.action_dim, cfg.window, cfg.hidden,
-                         cfg.critic_layer_norm)  # fmt: skip
+                         cfg.critic_layer_norm, max(1, cfg.critic_bins),
+                         cfg.critic_value_range)  # fmt: skip
 
     @torch.no_grad()
     def target(
@@ -112,6 +150,34 @@ class DDPGAgent(Agent):
     def critic_objective(self, critic_loss: torch.Tensor) -> torch.Tensor:
         """Eq. (2) as it is."""
         return critic_loss
+
+    def critic_loss(self, q: torch.Tensor, y: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+        """Eq. (2); with ``critic_bins``, the weighted cross-entropy of the logits at ``(s, a)``
+        (kept by :meth:`_critic_values`) to the HL-Gauss histogram of ``y``."""
+        if not self.cfg.critic_bins:
+            return super().critic_loss(q, y, weights)
+        critic = self.critic
+        assert isinstance(critic, MLPCritic)
+        width = (critic.edges[-1] - critic.edges[0]) / critic.bins
+        target = hl_gauss_targets(y, critic.edges, float(width) * HL_GAUSS_SIGMA_BINS)
+        cross_entropy = -(target * torch.log_softmax(self._q_logits, dim=1)).sum(1)
+        return (weights * cross_entropy).mean()
+
+    def _critic_values(
+        self, b: dict[str, torch.Tensor], actions: torch.Tensor, step_actor: bool
+    ) -> tuple[torch.Tensor, torch.Tensor, Any, Any, Any]:
+        """The core's step; with ``critic_bins`` it keeps the logits at ``(s, a)`` for
+        :meth:`critic_loss` (DDPG steps its actor on every update)."""
+        if not self.cfg.critic_bins:
+            return super()._critic_values(b, actions, step_actor)
+        critic = self.critic
+        assert isinstance(critic, MLPCritic)
+        obs = b["observations"]
+        y = self.target(b["rewards"], b["discounts"], b["next_observations"],
+                        b["next_action_windows"])  # fmt: skip
+        policy_action, log_pi = self._policy_action(obs)
+        self._q_logits, q_pi = critic.logits_pair(obs, actions, policy_action)
+        return critic.value(self._q_logits), y, policy_action, log_pi, q_pi
 
     def _policy_action(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """mu(s), keeping its pre-activations for the saturation term of :meth:`actor_loss`."""

@@ -152,6 +152,11 @@ class MLPCritic(nn.Module):
     pre-activation passes a LayerNorm before its ReLU, which bounds the critic's features and so
     its extrapolation to actions the buffer never holds; off, the norms are identities and the
     critic is Lillicrap's, parameter for parameter.
+
+    With ``bins > 1`` (beyond the paper: a classification critic, Farebrother et al. 2024) the
+    last layer gives logits over ``bins`` equal bins spanning ``value_range``, and Q is the
+    softmax's mean of the bin centres: ``forward`` and ``q_pair`` return that value, and
+    ``logits_pair`` the logits the cross-entropy loss (``hl_gauss_targets``) trains.
     """
 
     recurrent = False
@@ -163,9 +168,12 @@ class MLPCritic(nn.Module):
         window: int = 1,
         hidden: tuple[int, int] = (400, 300),
         layer_norm: bool = False,
+        bins: int = 1,
+        value_range: tuple[float, float] = (0.0, 0.0),
     ) -> None:
         super().__init__()
         self.layer_norm = layer_norm
+        self.bins = int(bins)
         self.window = window
         self.l1 = _fan_in_init(nn.Linear(obs_dim * window, hidden[0]))
         # the second layer's weight is split into its h1 and action columns: W2 [h1, a] =
@@ -177,9 +185,21 @@ class MLPCritic(nn.Module):
             self.l2.weight.copy_(l2.weight[:, : hidden[0]])
             self.l2.bias.copy_(l2.bias)
             self.l2_action.weight.copy_(l2.weight[:, hidden[0] :])
-        self.out = _final_init(nn.Linear(hidden[1], 1))
+        self.out = _final_init(nn.Linear(hidden[1], self.bins))
         self.norm1: nn.Module = nn.LayerNorm(hidden[0]) if layer_norm else nn.Identity()
         self.norm2: nn.Module = nn.LayerNorm(hidden[1]) if layer_norm else nn.Identity()
+        if self.bins > 1:
+            low, high = value_range
+            edges = torch.linspace(float(low), float(high), self.bins + 1)
+            self.register_buffer("edges", edges)
+            self.register_buffer("centres", 0.5 * (edges[1:] + edges[:-1]))
+
+    def value(self, out: torch.Tensor) -> torch.Tensor:
+        """Q ``(B,)`` from the last layer's output ``(B, bins)``: itself with one output, the
+        softmax's mean of the bin centres with bins."""
+        if self.bins == 1:
+            return out.squeeze(1)
+        return torch.softmax(out, dim=1) @ self.centres
 
     def forward(
         self,
@@ -190,7 +210,7 @@ class MLPCritic(nn.Module):
         """Q values ``(B,)``; ``past_actions`` is ignored (only the LSTM critic reads it)."""
         h = torch.relu_(self.norm1(self.l1(obs_window[:, -self.window :].flatten(1))))
         h = torch.relu_(self.norm2(torch.addmm(self.l2(h), action, self.l2_action.weight.t())))
-        return self.out(h).squeeze(1)
+        return self.value(self.out(h))
 
     def q_pair(
         self,
@@ -205,14 +225,34 @@ class MLPCritic(nn.Module):
         the critic costs ~1% instead of ~20% of an update's FLOPs. The second value is detached
         from the state path, so the actor loss reaches the actor through the action alone.
         """
+        out, q_pi = self.logits_pair(obs_window, action, policy_action)
+        return self.value(out), q_pi
+
+    def logits_pair(
+        self, obs_window: torch.Tensor, action: torch.Tensor, policy_action: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`q_pair` with the last layer's output at ``(s, a)`` ``(B, bins)`` in place of
+        its value: the logits a classification critic's loss reads."""
         h = torch.relu_(self.norm1(self.l1(obs_window[:, -self.window :].flatten(1))))
         base = self.l2(h)
         w_a = self.l2_action.weight.t()
-        q = self.out(torch.relu_(self.norm2(torch.addmm(base, action, w_a)))).squeeze(1)
-        q_pi = self.out(
+        out = self.out(torch.relu_(self.norm2(torch.addmm(base, action, w_a))))
+        q_pi = self.value(self.out(
             torch.relu_(self.norm2(torch.addmm(base.detach(), policy_action, w_a)))
-        ).squeeze(1)
-        return q, q_pi
+        ))  # fmt: skip
+        return out, q_pi
+
+
+def hl_gauss_targets(y: torch.Tensor, edges: torch.Tensor, sigma: float) -> torch.Tensor:
+    """The histogram loss's target (Imani & White 2018; "HL-Gauss", Farebrother et al. 2024):
+    a normal of mean ``y`` (clipped into the bins' span) and spread ``sigma``, its mass per bin
+    ``(B, bins)``, renormalised to the span. A regression target becomes a class distribution
+    whose neighbouring bins share the mass, so the mean of the bin centres under it is ``y``
+    to within the bins' resolution."""
+    y = y.clamp(float(edges[0]), float(edges[-1]))
+    cdf = torch.special.erf((edges[None, :] - y[:, None]) / (sigma * 2.0**0.5))
+    mass = cdf[:, 1:] - cdf[:, :-1]
+    return mass / (cdf[:, -1:] - cdf[:, :1])
 
 
 class TwinCritic(nn.Module):
