@@ -7,6 +7,7 @@ model); ``families.py`` registers it by name. The skeleton of one update is the 
     sample a batch (uniform or PER, n-step sums and discounts, windows: ``buffers.py``)
     y        = family.target(r^(n), d, s', past actions of s')               the target
     td       = y - Q(s, a);  L(Q) = 1/N sum_i w_i td_i^2                      w_i = 1 unless PER
+             (or the family's critic_loss: DDPG's classification critic's cross-entropy)
     critic   descends family.critic_objective(L(Q))
     actor    descends family.actor_loss(Q(s, pi(s))) + the cloning term (demonstrations)
     soft     theta' <- tau theta + (1 - tau) theta'                           one lerp, flat
