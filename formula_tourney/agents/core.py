@@ -287,7 +287,7 @@ class Agent:
         # critic; every other family and pair of networks updates through autograd
         self._mlp_update: MLPUpdate | None = None
         mlp_nets = (isinstance(self.critic, MLPCritic) and not self.critic.layer_norm
-                    and self.critic.bins == 1 and isinstance(self.actor, Actor))  # fmt: skip
+                    and isinstance(self.actor, Actor))  # fmt: skip
         if self.mlp_backend and mlp_nets:
             assert self.actor_target is not None
             self._mlp_update = MLPUpdate(

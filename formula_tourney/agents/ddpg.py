@@ -30,8 +30,6 @@ from formula_tourney.field_marks import marks
 
 PreactBound = Annotated[float, Field(gt=0.0, le=50.0)]
 ValueBound = Annotated[float, Field(ge=-1e6, le=1e6)]
-HL_GAUSS_SIGMA_BINS = 0.75
-"""The histogram loss's spread in bin widths: Farebrother et al.'s (2024) recommended ratio."""
 
 
 class DDPGSettings(FamilySettings):
@@ -86,8 +84,8 @@ class DDPGSettings(FamilySettings):
         "over equal bins spanning critic_value_range; Q is the softmax's mean of the bin "
         "centres, and the critic descends the cross-entropy to the target's HL-Gauss "
         "histogram (a normal of 0.75 bin widths around y), which holds up where the targets "
-        "are noisy or bimodal (a braking point that is made or crashed). DDPG then updates "
-        "through autograd. Not with lstm_critic.",
+        "are noisy or bimodal (a braking point that is made or crashed). Not with "
+        "lstm_critic.",
         json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
     )
     critic_value_range: tuple[ValueBound, ValueBound] = Field(
@@ -158,8 +156,7 @@ class DDPGAgent(Agent):
             return super().critic_loss(q, y, weights)
         critic = self.critic
         assert isinstance(critic, MLPCritic)
-        width = (critic.edges[-1] - critic.edges[0]) / critic.bins
-        target = hl_gauss_targets(y, critic.edges, float(width) * HL_GAUSS_SIGMA_BINS)
+        target = hl_gauss_targets(y, critic.edges)
         cross_entropy = -(target * torch.log_softmax(self._q_logits, dim=1)).sum(1)
         return (weights * cross_entropy).mean()
 

@@ -21,7 +21,12 @@ allocated once per batch size (``out=``), with no graph to build:
 * with demonstrations, behaviour cloning in the actor's loss (``BCLoss``) adds its gradient at
   ``mu`` before the squash's backward: one (B, 3) block, nothing when it is off;
 * the saturation term (``preact_penalty``) adds its gradient at the pre-activations ``z`` after
-  the squash's backward: one clamp, one subtraction and one add, nothing when it is off.
+  the squash's backward: one clamp, one subtraction and one add, nothing when it is off;
+* a classification critic (``critic_bins``): the last layer gives logits ``L`` over the bins,
+  ``Q = softmax(L) c`` with ``c`` the bin centres, so ``dQ/dL = p (c - Q)`` row by row, and the
+  critic's cross-entropy to the HL-Gauss targets ``t`` has ``dL(Q)/dL = w (p - t) / N``. Both
+  pass back through the last layer by one GEMM each instead of the one-output critic's
+  product with its weight row.
 
 The parameters stay the ``nn.Module`` parameters (state_dict keys and checkpoints unchanged);
 gradients are written into the parameters' ``.grad``, which the agent binds to views of one flat
@@ -35,7 +40,13 @@ from typing import NamedTuple
 
 import torch
 
-from formula_tourney.agents.networks import Actor, ActorPass, MLPCritic, addmm_operands
+from formula_tourney.agents.networks import (
+    Actor,
+    ActorPass,
+    MLPCritic,
+    addmm_operands,
+    hl_gauss_targets,
+)
 
 aten = torch.ops.aten
 
@@ -43,8 +54,8 @@ aten = torch.ops.aten
 class UpdateResult(NamedTuple):
     """What the agent reads back from one update (tensors are workspace views, reused later)."""
 
-    # [sum Q(s, a), sum Q(s, mu(s)), sum dL/dQ * td (= -2 L(Q)), sum |td|, cloning term (or 0),
-    #  saturation term (or 0)]
+    # [sum Q(s, a), sum Q(s, mu(s)), sum dL/dQ * td (= -2 L(Q); with bins -2 times the
+    #  cross-entropy), sum |td|, cloning term (or 0), saturation term (or 0)]
     stats: list[float]
     td: torch.Tensor  # (B,) y - Q(s, a)
     grad_a: torch.Tensor | None  # (B, A) grad_a Q(s_i, a_i), PER only
@@ -103,7 +114,7 @@ class _Workspace:
     """
 
     def __init__(self, batch: int, h1a: int, h2a: int, h1c: int, h2c: int, w_out: torch.Tensor,
-                 action_dim: int = 3):  # fmt: skip
+                 action_dim: int = 3, bins: int = 1):  # fmt: skip
         B = batch  # noqa: N806
         z = {"dtype": torch.float32, "device": w_out.device}
         self.batch = B
@@ -120,7 +131,14 @@ class _Workspace:
         self.base = torch.empty(B, h2c, **z)
         self.h2 = torch.empty(2 * B, h2c, **z)  # relu(base + [a; mu(s)] W2a^T)
         self.m2 = torch.empty(2 * B, h2c, **z)  # relu'(h2) * w_out = dQ/d(h2 pre-activation)
-        self.w_out_rows = w_out.expand(2 * B, -1)  # the critic's output weight per row (a view)
+        if bins == 1:  # the critic's output weight per row (a view)
+            self.w_out_rows = w_out.expand(2 * B, -1)
+        else:  # a classification critic's logits, dQ/dlogits and the loss's gradient at them
+            self.logits = torch.empty(2 * B, bins, **z)
+            self.dq_dlogits = torch.empty(2 * B, bins, **z)
+            self.g_logits = torch.empty(B, bins, **z)
+            self.g_logits_t = self.g_logits.t()
+            self.dh2 = torch.empty(2 * B, h2c, **z)  # dQ/dh2 before the ReLU's mask
         self.q = torch.empty(2 * B, 1, **z)
         self.g2 = torch.empty(B, h2c, **z)  # the critic loss's gradient at h2's pre-activation
         self.gq = torch.empty(B, 1, **z)  # dL(Q)/dQ(s, a)
@@ -188,12 +206,15 @@ class MLPUpdate:
             critic.l1.out_features, critic.l2.out_features,
         )  # fmt: skip
         self.action_dim = actor.out.out_features
+        self.bins = critic.bins
+        if self.bins > 1:
+            self.edges, self.centres = critic.edges, critic.centres.view(-1, 1)
         self.saturation = saturation if saturation is not None and saturation.weight else None
         self._ws: _Workspace | None = None
 
     def _workspace(self, batch: int) -> _Workspace:
         if self._ws is None or self._ws.batch != batch:
-            self._ws = _Workspace(batch, *self.sizes, self.c_out.w, self.action_dim)
+            self._ws = _Workspace(batch, *self.sizes, self.c_out.w, self.action_dim, self.bins)
         return self._ws
 
     # --- forward passes ------------------------------------------------------------------------
@@ -205,7 +226,11 @@ class MLPUpdate:
         torch.relu_(torch.addmm(self.tc_l1.b, x_next, self.tc_l1.wt, out=ws.c1))
         h2 = torch.addmm(self.tc_l2.b, ws.c1, self.tc_l2.wt, out=ws.base)  # base: a free buffer
         torch.relu_(h2.addmm_(mu, self.tc_act.wt))
-        q_next = torch.addmm(self.tc_out.b, h2, self.tc_out.wt, out=ws.y)
+        if self.bins == 1:
+            q_next = torch.addmm(self.tc_out.b, h2, self.tc_out.wt, out=ws.y)
+        else:  # the softmax's mean of the bin centres
+            logits = torch.addmm(self.tc_out.b, h2, self.tc_out.wt, out=ws.logits[: ws.batch])
+            q_next = torch.mm(torch.softmax(logits, 1), self.centres, out=ws.y)
         torch.addcmul(rewards, discounts, q_next, out=ws.y)
 
     def _critic_forward(self, ws: _Workspace, x: torch.Tensor, actions: torch.Tensor) -> None:
@@ -215,7 +240,12 @@ class MLPUpdate:
         torch.addmm(ws.base, actions, self.c_act.wt, out=ws.h2_q)
         torch.addmm(ws.base, ws.pi, self.c_act.wt, out=ws.h2_pi)
         torch.relu_(ws.h2)
-        torch.addmm(self.c_out.b, ws.h2, self.c_out.wt, out=ws.q)
+        if self.bins == 1:
+            torch.addmm(self.c_out.b, ws.h2, self.c_out.wt, out=ws.q)
+            return
+        torch.addmm(self.c_out.b, ws.h2, self.c_out.wt, out=ws.logits)
+        ws.p = torch.softmax(ws.logits, 1)
+        torch.mm(ws.p, self.centres, out=ws.q)
 
     # --- backward passes -----------------------------------------------------------------------
     @staticmethod
@@ -231,9 +261,19 @@ class MLPUpdate:
         Also leaves ``ws.m2`` = dQ/d(h2 pre-activation) for both row blocks: the actor's
         gradient and PER's grad_a Q read it.
         """
-        aten.threshold_backward.grad_input(ws.w_out_rows, ws.h2, 0, grad_input=ws.m2)
-        torch.mul(ws.m2_q, ws.gq, out=ws.g2)
-        self._dense_backward(ws.gq, ws.gq_t, ws.h2_q, self.c_out)
+        if self.bins == 1:
+            aten.threshold_backward.grad_input(ws.w_out_rows, ws.h2, 0, grad_input=ws.m2)
+            torch.mul(ws.m2_q, ws.gq, out=ws.g2)
+            self._dense_backward(ws.gq, ws.gq_t, ws.h2_q, self.c_out)
+        else:
+            # dQ/dlogits = p (c - Q) row by row, then through the last layer and the ReLU
+            torch.sub(self.centres.view(1, -1), ws.q, out=ws.dq_dlogits).mul_(ws.p)
+            torch.mm(ws.dq_dlogits, self.c_out.w, out=ws.dh2)
+            aten.threshold_backward.grad_input(ws.dh2, ws.h2, 0, grad_input=ws.m2)
+            # the cross-entropy's gradient, g_logits, through the last layer and the ReLU
+            torch.mm(ws.g_logits, self.c_out.w, out=ws.g2)
+            aten.threshold_backward.grad_input(ws.g2, ws.h2_q, 0, grad_input=ws.g2)
+            self._dense_backward(ws.g_logits, ws.g_logits_t, ws.h2_q, self.c_out)
         self._dense_backward(ws.g2, ws.g2_t, actions, self.c_act)
         self._dense_backward(ws.g2, ws.g2_t, ws.c1, self.c_l2)
         torch.mm(ws.g2, self.c_l2.w, out=ws.gc1)
@@ -295,6 +335,17 @@ class MLPUpdate:
         aten.threshold_backward.grad_input(ws.ga1, ws.a1, 0, grad_input=ws.ga1)
         self._dense_backward(ws.ga1, ws.ga1_t, x, self.a_l1)
 
+    def _cross_entropy(self, ws: _Workspace, weights: torch.Tensor) -> None:
+        """A classification critic's loss at ``(s, a)``: ``ws.g_logits`` = w (p - t) / N, its
+        gradient at the logits, and -2 times its value into ``ws.stats_td`` (where the squared
+        error's -2 L(Q) goes), t the HL-Gauss histogram of ``ws.y``."""
+        B = ws.batch  # noqa: N806
+        target = hl_gauss_targets(ws.y.view(-1), self.edges)
+        torch.sub(ws.p[:B], target, out=ws.g_logits).mul_(weights / B)
+        log_p = torch.log_softmax(ws.logits[:B], 1)
+        per_row = target.mul_(log_p).sum(1)  # sum_k t_k log p_k
+        torch.dot(per_row, weights.view(-1), out=ws.stats_td).mul_(2.0 / B)
+
     # --- the step ------------------------------------------------------------------------------
     @torch.no_grad()
     def gradients(
@@ -324,10 +375,13 @@ class MLPUpdate:
         # dL/dQ(s_i, a_i) of eq. (2): -2/N w_i (y_i - Q_i)
         torch.sub(ws.y, ws.q_q, out=ws.td)
         torch.addcmul(ws.zeros, ws.td, weights.view(B, 1), value=-2.0 / B, out=ws.gq)
+        if self.bins > 1:
+            self._cross_entropy(ws, weights.view(B, 1))
         self._critic_backward(ws, x, actions)
         self._actor_backward(ws, x, actions, bc)
         grad_a = torch.mm(ws.m2_q, self.c_act.w, out=ws.grad_a) if action_grad else None
         torch.sum(ws.q_rows, 1, out=ws.stats_q)
-        torch.dot(ws.gq_flat, ws.td_flat, out=ws.stats_td)
+        if self.bins == 1:
+            torch.dot(ws.gq_flat, ws.td_flat, out=ws.stats_td)
         torch.linalg.vector_norm(ws.td_flat, 1, out=ws.stats_abs)
         return UpdateResult(ws.stats.tolist(), ws.td_flat, grad_a)

@@ -243,13 +243,21 @@ class MLPCritic(nn.Module):
         return out, q_pi
 
 
-def hl_gauss_targets(y: torch.Tensor, edges: torch.Tensor, sigma: float) -> torch.Tensor:
+HL_GAUSS_SIGMA_BINS = 0.75
+"""The histogram loss's spread in bin widths: Farebrother et al.'s (2024) recommended ratio."""
+
+
+def hl_gauss_targets(
+    y: torch.Tensor, edges: torch.Tensor, sigma_bins: float = HL_GAUSS_SIGMA_BINS
+) -> torch.Tensor:
     """The histogram loss's target (Imani & White 2018; "HL-Gauss", Farebrother et al. 2024):
-    a normal of mean ``y`` (clipped into the bins' span) and spread ``sigma``, its mass per bin
-    ``(B, bins)``, renormalised to the span. A regression target becomes a class distribution
-    whose neighbouring bins share the mass, so the mean of the bin centres under it is ``y``
-    to within the bins' resolution."""
-    y = y.clamp(float(edges[0]), float(edges[-1]))
+    a normal of mean ``y`` (clipped into the bins' span) and spread ``sigma_bins`` bin widths,
+    its mass per bin ``(B, bins)``, renormalised to the span. A regression target becomes a
+    class distribution whose neighbouring bins share the mass, so the mean of the bin centres
+    under it is ``y`` to within the bins' resolution."""
+    low, high = float(edges[0]), float(edges[-1])
+    sigma = sigma_bins * (high - low) / (len(edges) - 1)
+    y = y.clamp(low, high)
     cdf = torch.special.erf((edges[None, :] - y[:, None]) / (sigma * 2.0**0.5))
     mass = cdf[:, 1:] - cdf[:, :-1]
     return mass / (cdf[:, -1:] - cdf[:, :1])
