@@ -14,7 +14,8 @@ acting, at testing and in every update (observations and next observations of th
 the statistics of the moment, as SB3 normalises replayed observations at sampling time). The
 statistics are part of the agent's state, so a checkpoint drives with the statistics it was
 trained with. Every counted observation enters exactly once (Chan et al.'s parallel update in
-float64), so a run gives the same statistics whatever the number of cars or the update order.
+float64: Gymnasium's ``RunningMeanStd``, which its ``NormalizeObservation`` wrapper keeps), so a
+run gives the same statistics whatever the number of cars or the update order.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from gymnasium.wrappers.utils import RunningMeanStd
 
 STD_FLOOR = 1e-3
 """Smallest standard deviation divided by: a value that never moved (a sensor constant on the
@@ -30,6 +32,10 @@ tracks seen so far) is centred, not blown up by 1/0, when it first moves."""
 CLIP = 10.0
 """Normalised values are clipped to +-this (SB3's ``clip_obs``): one observation far outside
 everything seen so far cannot saturate the first layer."""
+PRIOR_COUNT = 1e-12
+"""The weight of ``RunningMeanStd``'s prior (mean 0, variance 1): Gymnasium's default of 1e-4
+would bias a variance of 1e-4 (a scaled sensor that barely moves) by ~0.1 % after 1 000
+observations; this leaves the statistics those of the observations."""
 
 
 class RunningObsNorm:
@@ -38,8 +44,7 @@ class RunningObsNorm:
     def __init__(self, obs_dim: int, device: torch.device) -> None:
         self.obs_dim = int(obs_dim)
         self.count = 0
-        self._mean = np.zeros(self.obs_dim, np.float64)
-        self._m2 = np.zeros(self.obs_dim, np.float64)  # sum of squared deviations from the mean
+        self._stats = RunningMeanStd(epsilon=PRIOR_COUNT, shape=(self.obs_dim,))
         self._shift_np = np.zeros(self.obs_dim, np.float32)
         self._scale_np = np.ones(self.obs_dim, np.float32)
         self._shift = torch.zeros(self.obs_dim, dtype=torch.float32, device=device)
@@ -47,32 +52,26 @@ class RunningObsNorm:
 
     # --- statistics ---------------------------------------------------------------------------
     def update(self, observations: np.ndarray) -> None:
-        """Count ``observations`` ``(k, obs_dim)``: Chan et al.'s merge of their mean and squared
-        deviations into the running ones, then the map is refreshed."""
+        """Count ``observations`` ``(k, obs_dim)`` (Chan et al.'s merge of their mean and
+        variance into the running ones), then refresh the map."""
         x = np.asarray(observations, np.float64).reshape(-1, self.obs_dim)
-        k = len(x)
-        if k == 0:
+        if len(x) == 0:
             return
-        batch_mean = x.mean(axis=0)
-        batch_m2 = np.square(x - batch_mean).sum(axis=0)
-        total = self.count + k
-        delta = batch_mean - self._mean
-        self._mean = self._mean + delta * (k / total)
-        self._m2 = self._m2 + batch_m2 + np.square(delta) * (self.count * k / total)
-        self.count = total
+        self._stats.update(x)
+        self.count += len(x)
         self._refresh()
 
     @property
     def mean(self) -> np.ndarray:
-        return self._mean.copy()
+        return np.array(self._stats.mean, np.float64)
 
     @property
     def std(self) -> np.ndarray:
         """The population standard deviation of the counted observations (0 before any)."""
-        return np.sqrt(self._m2 / self.count) if self.count else np.zeros(self.obs_dim)
+        return np.sqrt(self._stats.var) if self.count else np.zeros(self.obs_dim)
 
     def _refresh(self) -> None:
-        self._shift_np = self._mean.astype(np.float32)
+        self._shift_np = self.mean.astype(np.float32)
         self._scale_np = (1.0 / np.maximum(self.std, STD_FLOOR)).astype(np.float32)
         self._shift.copy_(torch.from_numpy(self._shift_np))
         self._scale.copy_(torch.from_numpy(self._scale_np))
@@ -98,13 +97,16 @@ class RunningObsNorm:
     # --- state --------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
         """Tensors and plain values only (checkpoints load with ``weights_only``)."""
-        return {"count": self.count, "mean": torch.from_numpy(self._mean.copy()),
-                "m2": torch.from_numpy(self._m2.copy())}  # fmt: skip
+        return {"count": self.count, "stats_count": float(self._stats.count),
+                "mean": torch.from_numpy(self.mean), "var": torch.from_numpy(
+                    np.array(self._stats.var, np.float64))}  # fmt: skip
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         mean = state["mean"].detach().cpu().numpy().astype(np.float64)
-        m2 = state["m2"].detach().cpu().numpy().astype(np.float64)
-        if mean.shape != (self.obs_dim,) or m2.shape != (self.obs_dim,):
+        var = state["var"].detach().cpu().numpy().astype(np.float64)
+        if mean.shape != (self.obs_dim,) or var.shape != (self.obs_dim,):
             raise ValueError(f"observation statistics of {mean.shape} for {self.obs_dim} values")
-        self.count, self._mean, self._m2 = int(state["count"]), mean, m2
+        self.count = int(state["count"])
+        self._stats.mean, self._stats.var = mean, var
+        self._stats.count = float(state["stats_count"])
         self._refresh()
