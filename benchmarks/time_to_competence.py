@@ -54,6 +54,8 @@ from collections.abc import Iterable, Mapping  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any, NamedTuple  # noqa: E402
 
+from formula_tourney.commands.model_options import parse_key_values  # noqa: E402
+from formula_tourney.errors import UserInputError  # noqa: E402
 from formula_tourney.results.competence import (  # noqa: E402
     MILESTONE_LABELS,
     MILESTONES,
@@ -128,18 +130,13 @@ def parse_entrants(text: str) -> list[tuple[str, str]]:
     return out
 
 
-def parse_overrides(pairs: Iterable[str]) -> dict[str, Any]:
-    """``KEY=VALUE`` pairs; values parse as JSON (numbers, booleans), else stay strings."""
-    out: dict[str, Any] = {}
-    for pair in pairs:
-        key, sep, value = pair.partition("=")
-        if not sep or not key:
-            raise SystemExit(f"--set wants KEY=VALUE, got {pair!r}")
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
-    return out
+def parse_overrides(pairs: Iterable[str], what: str = "--set") -> dict[str, Any]:
+    """``KEY=VALUE`` pairs (``commands.model_options.parse_key_values``); a bad pair ends the
+    benchmark with its one-line message."""
+    try:
+        return parse_key_values(list(pairs), what)
+    except UserInputError as err:
+        raise SystemExit(str(err)) from None
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -324,7 +321,6 @@ def run_entrants(toml_path: Path, out_root: Path, jobs: int,
     """Run the tournament through the product and read its time-to-competence table: per
     entrant label (``parts``: part name -> label), its runs (failed seeds as misses), demos and
     beyond-paper labels."""
-    from formula_tourney.errors import UserInputError
     from formula_tourney.report.competence_table import competence_table
     from formula_tourney.report.load import load_tournament
     from formula_tourney.report.paper_tables import Context
@@ -564,7 +560,6 @@ def main() -> None:
     env_overrides = parse_overrides(args.env_set)
     schedule_overrides = parse_overrides(args.schedule_set)
 
-    from formula_tourney.errors import UserInputError
     from formula_tourney.sim.config import EnvSettings
     from formula_tourney.training.presets import get_preset
 

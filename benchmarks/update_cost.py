@@ -3,7 +3,8 @@
 Two agents of the same variant and preset, one with the settings given by ``--set`` and one
 without (the anchor), update on the same batches in interleaved timed blocks, in one process on
 one thread, so the ratio is measured under the same load. Sizes are the preset's (``best``:
-400-300 networks, batch 64) and the observation is `technical`'s with LAC.
+128-128 networks, batch 64); the batches are drawn from 10 000 steps of real telemetry on
+`technical` with LAC (33 values), driven by uniformly random actions.
 
     .venv/bin/python benchmarks/update_cost.py --set critic_bins=101 [--preset best]
         [--rounds 4] [--updates 1000]
@@ -23,46 +24,41 @@ import statistics  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 
-import numpy as np  # noqa: E402
+import gymnasium  # noqa: E402
 
+import formula_tourney  # noqa: E402, F401  (registers FormulaRacing-v0)
 from formula_tourney.agents.buffers import ReplayBuffer, make_buffer  # noqa: E402
 from formula_tourney.agents.core import Agent, configure_torch  # noqa: E402
 from formula_tourney.agents.families import make_agent  # noqa: E402
 from formula_tourney.agents.variants import get_variant, named_settings  # noqa: E402
+from formula_tourney.commands.model_options import parse_key_values  # noqa: E402
 from formula_tourney.errors import UserInputError  # noqa: E402
 from formula_tourney.training.presets import get_preset  # noqa: E402
 
-OBS_DIM = 60  # technical with LAC
+STEPS = 10_000
 
 
-def _filled(seed: int, n: int) -> ReplayBuffer:
-    buf = make_buffer(20_000, OBS_DIM, 3, prioritized=False, gamma=0.976, n_step=1, window=1,
+def _telemetry(seed: int) -> ReplayBuffer:
+    """``STEPS`` transitions of `technical` with LAC under uniformly random actions."""
+    env = gymnasium.make("FormulaRacing-v0", config={"track": "technical", "lac": True},
+                         disable_env_checker=True)  # fmt: skip
+    obs_dim = env.observation_space.shape[0]
+    buf = make_buffer(STEPS, obs_dim, 3, prioritized=False, gamma=0.976, n_step=1, window=1,
                       bootstrap_on_truncation=True, seed=seed)  # fmt: skip
-    rng = np.random.default_rng(seed)
-    for t in range(n):
-        buf.add(rng.normal(size=OBS_DIM), rng.random(3), 1.0 + rng.normal(),
-                rng.normal(size=OBS_DIM), terminated=t % 300 == 299, truncated=False)  # fmt: skip
+    env.action_space.seed(seed)
+    obs, _ = env.reset(seed=seed)
+    for _ in range(STEPS):
+        action = env.action_space.sample()
+        next_obs, reward, terminated, truncated, _ = env.step(action)
+        buf.add(obs, action, reward, next_obs, terminated, truncated)
+        obs = env.reset()[0] if terminated or truncated else next_obs
     return buf
 
 
-def _overrides(pairs: list[str]) -> dict[str, object]:
-    """``KEY=VALUE`` pairs; values parse as JSON (numbers, booleans, lists), else stay text."""
-    out: dict[str, object] = {}
-    for pair in pairs:
-        key, sep, value = pair.partition("=")
-        if not sep or not key:
-            raise UserInputError(f"--set wants KEY=VALUE, got {pair!r}")
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
-    return out
-
-
-def _agent(variant: str, preset: str, extra: dict[str, object]) -> Agent:
+def _agent(variant: str, preset: str, extra: dict[str, object], obs_dim: int) -> Agent:
     base = get_variant(variant)
     overrides = get_preset(preset).agent_overrides(base.family, named_settings(variant))
-    return make_agent(get_variant(variant, {**overrides, **extra}), OBS_DIM, seed=0)
+    return make_agent(get_variant(variant, {**overrides, **extra}), obs_dim, seed=0)
 
 
 def _time_block(agent: Agent, batches: list, updates: int) -> float:
@@ -83,13 +79,14 @@ def main() -> None:
     args = ap.parse_args()
     configure_torch(1)
     try:
-        extra = _overrides(args.set)
-        anchor, changed = _agent(args.variant, args.preset, {}), _agent(args.variant,
-                                                                         args.preset, extra)
+        extra = parse_key_values(args.set, "--set")
+        _agent(args.variant, args.preset, extra, 1)  # settings checked before the drive
     except UserInputError as err:
         print(f"error: {err}", file=sys.stderr)
         raise SystemExit(2) from None
-    buf = _filled(1, 10_000)
+    buf = _telemetry(1)
+    anchor = _agent(args.variant, args.preset, {}, buf.obs.shape[1])
+    changed = _agent(args.variant, args.preset, extra, buf.obs.shape[1])
     batches = [buf.sample(anchor.cfg.batch_size) for _ in range(400)]
     for agent in (anchor, changed):  # warm-up: buffers allocated, caches filled
         _time_block(agent, batches, 100)
@@ -103,7 +100,7 @@ def main() -> None:
     print(json.dumps({
         "benchmark": "update_cost", "variant": args.variant, "preset": args.preset,
         "settings": extra, "batch_size": anchor.cfg.batch_size,
-        "hidden": list(anchor.cfg.hidden), "obs_dim": OBS_DIM,
+        "hidden": list(anchor.cfg.hidden), "obs_dim": anchor.obs_dim,
         "anchor_us": round(med["anchor"], 1), "changed_us": round(med["changed"], 1),
         "ratio": round(med["changed"] / med["anchor"], 3),
     }))

@@ -6,7 +6,6 @@ Heavy imports (torch, the simulator) happen inside the commands so ``--help`` st
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +14,7 @@ import typer
 from formula_tourney.commands.model_options import (
     chosen_values,
     field_options,
+    parse_key_values,
     with_field_options,
 )
 from formula_tourney.commands.output import emit, message
@@ -48,20 +48,6 @@ keeps the option names users already type (``--track``, ``--test-every``, ``--bc
 RESULT_KEYS = (
     "best_lap_s", "laps", "damage", "finished", "episodes", "env_steps", "updates", "seconds",
 )  # fmt: skip
-
-
-def _parse_sets(items: list[str], what: str) -> dict[str, Any]:
-    """``key=value`` pairs; values parse as JSON when they can (numbers, lists, booleans)."""
-    out: dict[str, Any] = {}
-    for item in items:
-        if "=" not in item:
-            raise UserInputError(f"{what} {item!r}: expected key=value")
-        key, raw = item.split("=", 1)
-        try:
-            out[key.strip()] = json.loads(raw)
-        except json.JSONDecodeError:
-            out[key.strip()] = raw
-    return out
 
 
 def _outside_option(impl: str | None, entry: str | None, sb3: str | None,
@@ -165,12 +151,12 @@ def register(app: typer.Typer) -> None:
         demos = chosen_values(ctx, TRAIN_OPTIONS, values, DemoSettings)
         run = chosen_values(ctx, TRAIN_OPTIONS, values, RunSpec)
         outside = _outside_option(impl, entry, sb3, sb3_contrib,
-                                  _parse_sets(entrant_set, "--entrant-set"))  # fmt: skip
+                                  parse_key_values(entrant_set, "--entrant-set"))  # fmt: skip
         if outside is not None and not _user_set(ctx, "variant"):
             run["variant"] = _outside_name(outside)  # WIN1, the default, would mislabel it
         spec = build_run_spec(
-            **run, overrides=_parse_sets(set_, "--set"),
-            env_overrides=_parse_sets(env_set, "--env-set"),
+            **run, overrides=parse_key_values(set_, "--set"),
+            env_overrides=parse_key_values(env_set, "--env-set"),
             schedule=chosen_values(ctx, TRAIN_OPTIONS, values, Schedule),
             demos=demos or None, preset=preset, source="train options", outside=outside,
         )  # fmt: skip

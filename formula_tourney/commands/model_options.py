@@ -158,3 +158,19 @@ def _shown(raw: Any) -> str:
 
 def _messages(err: ValidationError) -> str:
     return "; ".join(str(e["msg"]) for e in err.errors())
+
+
+def parse_key_values(items: list[str], what: str) -> dict[str, Any]:
+    """``key=value`` pairs of a repeatable option such as ``--set``: values parse as JSON when
+    they can (numbers, lists, booleans), else stay text; a pair without ``=`` is a
+    UserInputError naming the option."""
+    out: dict[str, Any] = {}
+    for item in items:
+        if "=" not in item:
+            raise UserInputError(f"{what} {item!r}: expected key=value")
+        key, raw = item.split("=", 1)
+        try:
+            out[key.strip()] = json.loads(raw)
+        except json.JSONDecodeError:
+            out[key.strip()] = raw
+    return out
