@@ -20,6 +20,7 @@ from formula_tourney.agents.families import make_agent
 from formula_tourney.agents.networks import HL_GAUSS_SIGMA_BINS, MLPCritic, hl_gauss_targets
 from formula_tourney.agents.variants import get_variant
 from formula_tourney.errors import UserInputError
+from formula_tourney.training.run_spec import build_run_spec
 
 torch.set_num_threads(1)
 D = 6
@@ -92,16 +93,23 @@ def test_checkpoints_round_trip_and_settings_are_checked(tmp_path: Path) -> None
     np.testing.assert_array_equal(q_loaded.numpy(), q_saved.numpy())
     for bad, words in (({"critic_bins": 1}, "not 1"),
                        ({"critic_bins": 11, "critic_value_range": (5.0, 5.0)}, "must be below"),
-                       ({"critic_bins": 11, "lstm_critic": True}, "not lstm_critic")):  # fmt: skip
+                       ({"critic_bins": 11, "lstm_critic": True}, "not lstm_critic"),
+                       ({"critic_value_range": (-5.0, 5.0)}, "needs critic_bins")):  # fmt: skip
         with pytest.raises(UserInputError, match=words):
             get_variant("WIN1", bad)
     with pytest.raises(UserInputError, match="critic_bins apply to algorithm ddpg only"):
         get_variant("TD3", {"critic_bins": 11})
 
 
-def test_zero_bins_keep_the_papers_critic_and_its_update() -> None:
-    """The same weights after updates as before the setting existed: one output, the
-    hand-written backend, the squared TD error."""
+def test_zero_bins_keep_the_papers_critic_and_the_setting_is_beyond_paper(ring_tracks) -> None:
+    """One output, the hand-written backend, no bins; a run spec labels the setting and leaves
+    it out of its config at 0."""
     plain = make_agent(get_variant("WIN1", SMALL), D, seed=0)
     assert plain._mlp_update is not None and plain.critic.out.out_features == 1
     assert not hasattr(plain.critic, "centres")
+    spec = build_run_spec(variant="WIN1", train_tracks=["ringA"], overrides={})
+    assert "critic_bins" not in spec.to_json()["agent"] and spec.beyond_paper() == []
+    binned = build_run_spec(variant="WIN1", train_tracks=["ringA"],
+                            overrides={"critic_bins": 51})  # fmt: skip
+    assert binned.to_json()["agent"]["critic_bins"] == 51
+    assert binned.beyond_paper() == ["critic_bins 51"]

@@ -145,6 +145,11 @@ def test_a_familys_settings_are_its_own(algorithm: str, key: str) -> None:
         if key == "critic_bins" and variant.lstm_critic:  # the MLP critic's alone
             with pytest.raises(UserInputError, match="not lstm_critic"):
                 get_variant(name, {key: value})
+        elif key == "critic_value_range" and variant.algorithm == algorithm:  # the bins' span
+            with pytest.raises(UserInputError, match="needs critic_bins"):
+                get_variant(name, {key: value})
+            if not variant.lstm_critic:
+                assert get_variant(name, {key: value, "critic_bins": 2}).critic_value_range == value
         elif variant.algorithm == algorithm:
             assert getattr(get_variant(name, {key: value}), key) == value
         else:

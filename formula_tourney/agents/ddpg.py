@@ -106,6 +106,12 @@ class DDPGSettings(FamilySettings):
                              f"end {high}")  # fmt: skip
         if self.critic_bins and self.lstm_critic:
             raise ValueError("critic_bins applies to the MLP critic, not lstm_critic")
+        # (on another family's variant the flat config refuses every DDPG setting instead)
+        own = getattr(self, "algorithm", "ddpg") == "ddpg"
+        default_range = type(self).model_fields["critic_value_range"].default
+        if own and not self.critic_bins and tuple(self.critic_value_range) != default_range:
+            raise ValueError("critic_value_range is the span of critic_bins: it needs "
+                             "critic_bins of 2 or more")  # fmt: skip
         return self
 
 
