@@ -344,11 +344,11 @@ class Agent:
         """The actor's action at ``obs`` for the actor loss, and its log-probability (or None)."""
         return self.actor(obs), None
 
-    def critic_loss(self, q: torch.Tensor, y: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
-        """L(Q): the weighted mean squared TD error (twins: the mean of L(Q_1), L(Q_2)); a
-        family with another loss of its critic's outputs (a classification critic) overrides
-        it."""
-        return (weights * (y - q).square()).mean()
+    def critic_loss(self, td: torch.Tensor, y: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+        """L(Q) from the TD errors ``td = y - Q(s, a)``: their weighted mean square (twins: the
+        mean of L(Q_1), L(Q_2)); a family with another loss of its critic's outputs (a
+        classification critic, which reads ``y``) overrides it."""
+        return (weights * td.square()).mean()
 
     def critic_objective(self, critic_loss: torch.Tensor) -> torch.Tensor:
         """What the critic parameters descend, from the (mean) weighted critic loss."""
@@ -500,7 +500,7 @@ class Agent:
         actions = b["actions"].requires_grad_(cfg.prioritized)
         q, y, policy_action, log_pi, q_pi = self._critic_values(b, actions, step_actor)
         td = y - q
-        critic_loss = self.critic_loss(q, y, b["weights"])
+        critic_loss = self.critic_loss(td, y, b["weights"])
         q_1, td_1 = (q[0], td[0]) if self.twin_critics else (q, td)
         if cfg.prioritized:  # the priority needs grad_a Q(s_i, a_i) at the stored action
             (grad_a,) = torch.autograd.grad(q_1.sum(), actions, retain_graph=True)

@@ -155,11 +155,11 @@ class DDPGAgent(Agent):
         """Eq. (2) as it is."""
         return critic_loss
 
-    def critic_loss(self, q: torch.Tensor, y: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    def critic_loss(self, td: torch.Tensor, y: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
         """Eq. (2); with ``critic_bins``, the weighted cross-entropy of the logits at ``(s, a)``
         (kept by :meth:`_critic_values`) to the HL-Gauss histogram of ``y``."""
         if not self.cfg.critic_bins:
-            return super().critic_loss(q, y, weights)
+            return super().critic_loss(td, y, weights)
         critic = self.critic
         assert isinstance(critic, MLPCritic)
         target = hl_gauss_targets(y, critic.edges)
