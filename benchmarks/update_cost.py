@@ -30,7 +30,7 @@ import formula_tourney  # noqa: E402, F401  (registers FormulaRacing-v0)
 from formula_tourney.agents.buffers import ReplayBuffer, make_buffer  # noqa: E402
 from formula_tourney.agents.core import Agent, configure_torch  # noqa: E402
 from formula_tourney.agents.families import make_agent  # noqa: E402
-from formula_tourney.agents.variants import get_variant, named_settings  # noqa: E402
+from formula_tourney.agents.variants import AgentConfig, get_variant, named_settings  # noqa: E402
 from formula_tourney.commands.model_options import parse_key_values  # noqa: E402
 from formula_tourney.errors import UserInputError  # noqa: E402
 from formula_tourney.training.presets import get_preset  # noqa: E402
@@ -55,10 +55,11 @@ def _telemetry(seed: int) -> ReplayBuffer:
     return buf
 
 
-def _agent(variant: str, preset: str, extra: dict[str, object], obs_dim: int) -> Agent:
+def _config(variant: str, preset: str, extra: dict[str, object]) -> AgentConfig:
+    """The variant under the preset, with ``extra`` on top, validated."""
     base = get_variant(variant)
     overrides = get_preset(preset).agent_overrides(base.family, named_settings(variant))
-    return make_agent(get_variant(variant, {**overrides, **extra}), obs_dim, seed=0)
+    return get_variant(variant, {**overrides, **extra})
 
 
 def _time_block(agent: Agent, batches: list, updates: int) -> float:
@@ -80,13 +81,13 @@ def main() -> None:
     configure_torch(1)
     try:
         extra = parse_key_values(args.set, "--set")
-        _agent(args.variant, args.preset, extra, 1)  # settings checked before the drive
+        configs = [_config(args.variant, args.preset, {}),
+                   _config(args.variant, args.preset, extra)]  # fmt: skip
     except UserInputError as err:
         print(f"error: {err}", file=sys.stderr)
         raise SystemExit(2) from None
     buf = _telemetry(1)
-    anchor = _agent(args.variant, args.preset, {}, buf.obs.shape[1])
-    changed = _agent(args.variant, args.preset, extra, buf.obs.shape[1])
+    anchor, changed = (make_agent(cfg, buf.obs.shape[1], seed=0) for cfg in configs)
     batches = [buf.sample(anchor.cfg.batch_size) for _ in range(400)]
     for agent in (anchor, changed):  # warm-up: buffers allocated, caches filled
         _time_block(agent, batches, 100)

@@ -43,7 +43,6 @@ class RunningObsNorm:
 
     def __init__(self, obs_dim: int, device: torch.device) -> None:
         self.obs_dim = int(obs_dim)
-        self.count = 0
         self._stats = RunningMeanStd(epsilon=PRIOR_COUNT, shape=(self.obs_dim,))
         self._shift_np = np.zeros(self.obs_dim, np.float32)
         self._scale_np = np.ones(self.obs_dim, np.float32)
@@ -58,8 +57,12 @@ class RunningObsNorm:
         if len(x) == 0:
             return
         self._stats.update(x)
-        self.count += len(x)
         self._refresh()
+
+    @property
+    def count(self) -> int:
+        """Observations counted so far (the statistics' count less the prior's weight)."""
+        return round(self._stats.count - PRIOR_COUNT)
 
     @property
     def mean(self) -> np.ndarray:
@@ -97,16 +100,15 @@ class RunningObsNorm:
     # --- state --------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
         """Tensors and plain values only (checkpoints load with ``weights_only``)."""
-        return {"count": self.count, "stats_count": float(self._stats.count),
-                "mean": torch.from_numpy(self.mean), "var": torch.from_numpy(
-                    np.array(self._stats.var, np.float64))}  # fmt: skip
+        var = np.array(self._stats.var, np.float64)
+        return {"count": float(self._stats.count), "mean": torch.from_numpy(self.mean),
+                "var": torch.from_numpy(var)}  # fmt: skip
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         mean = state["mean"].detach().cpu().numpy().astype(np.float64)
         var = state["var"].detach().cpu().numpy().astype(np.float64)
         if mean.shape != (self.obs_dim,) or var.shape != (self.obs_dim,):
             raise ValueError(f"observation statistics of {mean.shape} for {self.obs_dim} values")
-        self.count = int(state["count"])
         self._stats.mean, self._stats.var = mean, var
-        self._stats.count = float(state["stats_count"])
+        self._stats.count = float(state["count"])
         self._refresh()
