@@ -21,9 +21,12 @@ import json  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from formula_tourney.agents.buffers import ObservationWindow  # noqa: E402
 from formula_tourney.training.envs import RunEnvs  # noqa: E402
-from formula_tourney.training.evaluate import load_run_checkpoint, start_positions  # noqa: E402
+from formula_tourney.training.evaluate import (  # noqa: E402
+    greedy_windows,
+    load_run_checkpoint,
+    start_positions,
+)
 
 
 def main() -> None:
@@ -36,15 +39,10 @@ def main() -> None:
     envs = RunEnvs(spec, extra_tracks=[args.track])
     env = envs.make(args.track, test=True, max_steps=args.max_steps)
     start = start_positions(envs.tracks[args.track].length_m, 1)[0]
-    obs, info = env.reset(seed=0, options={"start_s_m": start})
-    window = ObservationWindow(agent.cfg.window)
-    stack, zs = window.reset(obs), []
-    while True:  # the actor a test drives (the average where one is kept)
+    zs, info = [], {}
+    for stack, _, step_info in greedy_windows(agent, env, start):  # the actor a test drives
         zs.append(agent.eval_preactivation(stack))
-        obs, _, terminated, truncated, info = env.step(agent.act_eval(stack))
-        if terminated or truncated:
-            break
-        stack = window.push(obs)
+        info = step_info  # the last step's tells how the drive ended
     z = np.asarray(zs)
     names = ["steer", "throttle", "brake"] if z.shape[1] == 3 else ["steer", "pedal"]
     out = {name: {"percentiles_1_10_50_90_99": np.round(np.percentile(z[:, i],

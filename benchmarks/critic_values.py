@@ -24,10 +24,13 @@ import sys  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from formula_tourney.agents.buffers import ObservationWindow  # noqa: E402
 from formula_tourney.agents.networks import MLPCritic  # noqa: E402
 from formula_tourney.training.envs import RunEnvs  # noqa: E402
-from formula_tourney.training.evaluate import load_run_checkpoint, start_positions  # noqa: E402
+from formula_tourney.training.evaluate import (  # noqa: E402
+    greedy_windows,
+    load_run_checkpoint,
+    start_positions,
+)
 
 
 def main() -> None:
@@ -46,20 +49,14 @@ def main() -> None:
     qs: list[float] = []
     ends: list[str] = []
     for start in start_positions(envs.tracks[args.track].length_m, args.starts):
-        obs, info = env.reset(seed=0, options={"start_s_m": start})
-        window = ObservationWindow(agent.cfg.window)
-        stack = window.reset(obs)
-        while True:
-            action = agent.act_eval(stack)
+        info: dict = {}
+        for stack, action, step_info in greedy_windows(agent, env, start):
+            info = step_info  # the last step's tells how the drive ended
             with torch.no_grad():
                 x = torch.as_tensor(stack, dtype=torch.float32, device=agent.device)
                 a = torch.as_tensor(action, dtype=torch.float32, device=agent.device)
                 q = agent.critic(agent.normalise(x.reshape(1, -1, agent.obs_dim)), a.reshape(1, -1))
             qs.append(float(q[0]))
-            obs, _, terminated, truncated, info = env.step(action)
-            if terminated or truncated:
-                break
-            stack = window.push(obs)
         ends.append(str(info.get("termination")))
     pct = np.round(np.percentile(qs, [1, 10, 50, 90, 99]), 1).tolist()
     print(f"Q percentiles 1, 10, 50, 90, 99: {pct}; drives end: {', '.join(ends)}")

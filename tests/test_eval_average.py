@@ -20,7 +20,7 @@ from formula_tourney.agents.families import make_agent
 from formula_tourney.agents.variants import AgentConfig, get_variant
 from formula_tourney.errors import UserInputError
 from formula_tourney.sim.env import FormulaRacingEnv
-from formula_tourney.training.evaluate import run_test_episode
+from formula_tourney.training.evaluate import greedy_windows, run_test_episode
 from formula_tourney.training.run_spec import build_run_spec
 
 torch.set_num_threads(1)
@@ -133,3 +133,18 @@ def test_the_setting_is_beyond_paper_and_left_out_of_config_at_zero(ring_tracks)
     assert averaged.beyond_paper() == ["eval_ema_updates 2000"]
     with pytest.raises(UserInputError, match="eval_ema_updates"):
         build_run_spec(variant="WIN1", train_tracks=["ringA"], overrides={"eval_ema_updates": -1})
+
+
+def test_greedy_windows_is_the_drive_a_test_takes() -> None:
+    """The per-step drive the benchmarks read the networks along is the test's own: the same
+    actions, steps and end as ``run_test_episode`` from the same start."""
+    cfg = get_variant("WIN4", {"hidden": (32, 24)})
+    agent = make_agent(cfg, 29, seed=0)
+    env = FormulaRacingEnv({"track": ring_track("ring"), "max_steps": 60, "random_start": False})
+    drive = run_test_episode(agent, env, "ring", 0.0, seed=0, keep_steps=True)
+    steps = list(greedy_windows(agent, env, 0.0, seed=0))
+    assert len(steps) == drive.steps == 17 and drive.termination == "off_track"
+    assert steps[-1][2]["termination"] == "off_track"
+    assert steps[0][0].shape == (4, 29)  # the WIN4 window, as the actor reads it
+    throttle = np.array([action[1] for _, action, _ in steps])
+    np.testing.assert_allclose(throttle, drive.steps_trace["throttle"], rtol=1e-6)

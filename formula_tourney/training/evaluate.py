@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 import os
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -85,6 +86,23 @@ def _xy(info: dict[str, Any], track: Any) -> tuple[float, float]:
         return float(info["x_m"]), float(info["y_m"])
     x, y, _ = track.pose_at(float(info.get("s_m", 0.0)), float(info.get("lateral_m", 0.0)))
     return float(x), float(y)
+
+
+def greedy_windows(agent: Agent, env: Any, start_s_m: float, seed: int = 0,
+                   ) -> Iterator[tuple[np.ndarray, np.ndarray, dict[str, Any]]]:
+    """One greedy drive from ``start_s_m`` as the (observation window, action, info after the
+    step) of each step, for scripts that read the agent's networks along a test drive
+    (``benchmarks/actor_saturation.py``, ``benchmarks/critic_values.py``)."""
+    obs, info = env.reset(seed=seed, options={"start_s_m": float(start_s_m)})
+    window = ObservationWindow(agent.cfg.window)
+    stack = window.reset(obs)
+    while True:
+        action = agent.act_eval(stack)
+        obs, _, terminated, truncated, info = env.step(action)
+        yield stack, action, info
+        if terminated or truncated:
+            return
+        stack = window.push(obs)
 
 
 def run_test_episode(
