@@ -243,13 +243,19 @@ def test_the_reward_settings_keep_the_config_hash_of_existing_runs() -> None:
     before the reward model, so that a resumed tournament still finds their jobs finished. The
     paper's is the hash of the layout before; ``best-demos`` and ``best`` carry the settings of
     the presets they replaced under their new names. ``best`` took the overspeed crash penalty
-    later: its runs have a new hash, and the former ``best`` (the penalty set to 0) the old."""
+    and later the classification critic with the steer's saturation term: each gave its runs a
+    new hash, and the former ``best`` (those set back to the paper's) keeps the old."""
     digests = {preset: build_run_spec(variant="WIN1", train_tracks=["oval"],
                                       preset=preset).digest()
                for preset in ("paper", "best-demos", "best")}  # fmt: skip
     assert digests == {"paper": "b96be71af1f8944f", "best-demos": "19242dd8d92773a9",
-                       "best": "e41b92054560af51"}
+                       "best": "fb1b6d477ce47dbb"}
+    paper_critic = {"critic_bins": 0, "preact_penalty": 0.0, "preact_bound": (6.0, 6.0)}
     former = build_run_spec(variant="WIN1", train_tracks=["oval"], preset="best",
+                            overrides=paper_critic)
+    assert former.digest() == "e41b92054560af51"
+    former = build_run_spec(variant="WIN1", train_tracks=["oval"], preset="best",
+                            overrides=paper_critic,
                             env_overrides={"overspeed_crash_weight": 0.0})
     assert former.digest() == "b7cb11ff96e7fa13"
     spec = build_run_spec(variant="WIN1", train_tracks=["oval"], preset="best-demos")

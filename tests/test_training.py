@@ -471,14 +471,16 @@ def test_best_changes_the_reward_for_all_and_the_ddpg_familys_update(ring_tracks
     """`best` is `tuned` with the progress reward (line term 0.3) and the overspeed crash
     penalty (0.5) for every family
     and, for the WIN variants alone (the family it was measured on), twice `tuned`'s learning
-    rates and tests on a 3 000-update average of the actor. A user's env override wins over the
-    preset's, key by key, and is named."""
+    rates, tests on a 3 000-update average of the actor, a 101-bin classification critic and
+    the saturation term on the steer. A user's env override wins over the preset's, key by key,
+    and is named."""
     for variant in ("WIN1", "WIN4"):
         tuned = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned")
         progress = build_run_spec(variant=variant, train_tracks=["ringA"], preset="best")
         changed = {k: v for k, v in progress.agent.model_dump().items()
                    if v != getattr(tuned.agent, k)}  # fmt: skip
-        assert changed == {"actor_lr": 7.4e-4, "critic_lr": 1.5e-3, "eval_ema_updates": 3000}
+        assert changed == {"actor_lr": 7.4e-4, "critic_lr": 1.5e-3, "eval_ema_updates": 3000,
+                           "critic_bins": 101, "preact_penalty": 1.0, "preact_bound": (6.0, 50.0)}
         assert progress.beyond_paper() == ["preset best"]
         assert RunSpec.from_json(progress.to_json(), "round trip") == progress
     for variant in ("PER1M", "MS3", "LSTM4", "TD3", "SAC"):

@@ -37,6 +37,7 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+from pydantic_core import to_jsonable_python
 
 from formula_tourney.agents.outside.kind import OutsideEntrant
 from formula_tourney.agents.variants import (
@@ -359,9 +360,9 @@ class RunSpec(_Frozen):
         choices are named by "preset NAME", a user's change on top of it is named here."""
         preset = get_preset(self.preset)
         preset_agent = preset.agent_overrides(self.agent.family, named_settings(self.variant))
-        base = {"agent": {**_DEFAULTS["agent"], **preset_agent},
-                "env": {**_DEFAULTS["env"], **preset.env}}
         # compared as JSON, as the defaults are: a pair is a tuple here and a list there
+        base = {"agent": {**_DEFAULTS["agent"], **to_jsonable_python(preset_agent)},
+                "env": {**_DEFAULTS["env"], **to_jsonable_python(preset.env)}}
         values = {"agent": self.agent.model_dump(mode="json"),
                   "env": self.env.model_dump(mode="json")}  # fmt: skip
         return [_setting_label(key, values[section][key])
