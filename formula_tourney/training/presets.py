@@ -127,7 +127,7 @@ _TUNED_BC_EMA_DDPG = {**_TUNED_DDPG, "actor_lr": 1e-4, "crash_penalty": 1000.0,
 # The DDPG family's critic is a classification critic (101 bins over -100..100) and its actor's
 # loss holds the steer's pre-activation within +-6 (the pedals' bound, 50, is the largest
 # allowed): from scratch WIN1 then beats the best bot on `technical` and `flowing` in 4 of 4
-# seeds, which it did in none within 5 and 10 CPU-min without them. The trade: the oval laps
+# seeds, which it did in none within 20 and 10 CPU-min without them. The trade: the oval laps
 # ~0.25 s slower (1.038 x the limit at 300 CPU-s against 1.030) and `technical`'s first clean lap
 # comes later (~50k env steps against ~20k). Without the steer's term one oval run in four
 # steered to full lock and stayed there.
