@@ -22,7 +22,6 @@ import json  # noqa: E402
 import sys  # noqa: E402
 
 import numpy as np  # noqa: E402
-import torch  # noqa: E402
 
 from formula_tourney.agents.networks import MLPCritic  # noqa: E402
 from formula_tourney.training.envs import RunEnvs  # noqa: E402
@@ -43,7 +42,7 @@ def main() -> None:
     agent, spec, _ = load_run_checkpoint(args.checkpoint)
     if not isinstance(agent.critic, MLPCritic):
         sys.exit(f"error: {args.checkpoint}: reads one MLP critic (the DDPG family's), not a "
-                 f"{type(agent.critic).__name__}")
+                 f"{type(agent.critic).__name__}")  # before the drive, not at its first step
     envs = RunEnvs(spec, extra_tracks=[args.track])
     env = envs.make(args.track, test=True, max_steps=args.max_steps)
     qs: list[float] = []
@@ -52,11 +51,7 @@ def main() -> None:
         info: dict = {}
         for stack, action, step_info in greedy_windows(agent, env, start):
             info = step_info  # the last step's tells how the drive ended
-            with torch.no_grad():
-                x = torch.as_tensor(stack, dtype=torch.float32, device=agent.device)
-                a = torch.as_tensor(action, dtype=torch.float32, device=agent.device)
-                q = agent.critic(agent.normalise(x.reshape(1, -1, agent.obs_dim)), a.reshape(1, -1))
-            qs.append(float(q[0]))
+            qs.append(agent.eval_q(stack, action))
         ends.append(str(info.get("termination")))
     pct = np.round(np.percentile(qs, [1, 10, 50, 90, 99]), 1).tolist()
     print(f"Q percentiles 1, 10, 50, 90, 99: {pct}; drives end: {', '.join(ends)}")

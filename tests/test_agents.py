@@ -285,6 +285,25 @@ def test_eval_preactivation_is_what_the_tested_actor_squashes(extra: dict) -> No
         np.testing.assert_allclose(online, z, rtol=1e-6)
 
 
+def test_eval_q_reads_the_critic_through_the_observation_statistics() -> None:
+    """The Q a benchmark reads along a drive is the update's: the window goes through the
+    running statistics (``obs_norm``) first, so a read of the raw window would differ."""
+    cfg = get_variant("WIN1", {**SMALL, "buffer_size": 1000, "obs_norm": True})
+    agent = make_agent(cfg, D, seed=2)
+    rng = np.random.default_rng(0)
+    agent.count_observations((3.0 + 5.0 * rng.standard_normal((200, D))).astype(np.float32))
+    window = rng.standard_normal((1, D)).astype(np.float32)
+    action = agent.act_eval(window)
+    x, a = torch.as_tensor(window)[None], torch.as_tensor(action)[None]
+    with torch.no_grad():
+        seen, raw = float(agent.critic(agent.normalise(x), a)[0]), float(agent.critic(x, a)[0])
+    assert agent.eval_q(window, action) == pytest.approx(seen, rel=1e-6)
+    assert abs(raw - seen) > 1e-4
+    with pytest.raises(TypeError, match="not a LSTMCritic"):
+        make_agent(get_variant("LSTM4", _small("LSTM4")), D, seed=2).eval_q(
+            np.zeros((4, D), np.float32), np.zeros(3, np.float32))
+
+
 @pytest.mark.parametrize("name", ["WIN4", "LSTM4"])
 def test_q_pair_equals_two_critic_evaluations(name: str) -> None:
     """The shared-state-path evaluation gives exactly Q(s, a) and Q(s, mu(s))."""

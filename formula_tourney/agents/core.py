@@ -385,6 +385,17 @@ class Agent:
         with torch.no_grad():
             return self._eval_actor.preactivation(self._window_tensor(obs_window))[0].cpu().numpy()
 
+    def eval_q(self, obs_window: np.ndarray, action: np.ndarray) -> float:
+        """The critic's Q at one window and action, read as the update reads it (the window
+        through the running observation statistics where ``cfg.obs_norm`` keeps them): what a
+        trained critic has learnt along a test drive (``benchmarks/critic_values.py``)."""
+        if not isinstance(self.critic, MLPCritic):
+            raise TypeError(f"reads one MLP critic (the DDPG family's), not a "
+                            f"{type(self.critic).__name__}")  # fmt: skip
+        a = torch.as_tensor(action, dtype=torch.float32, device=self.device).reshape(1, -1)
+        with torch.no_grad():
+            return float(self.critic(self._window_tensor(obs_window), a)[0])
+
     def _greedy_action(
         self, actor: nn.Module, greedy: GreedyAct | None, obs_window: np.ndarray
     ) -> np.ndarray:
