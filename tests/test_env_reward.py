@@ -241,14 +241,15 @@ def test_each_setting_is_declared_once_in_the_table() -> None:
 def test_the_reward_settings_keep_the_config_hash_of_existing_runs() -> None:
     """Config hashes of runs (the paper's, a crash penalty, the progress reward) as written
     before the reward model, so that a resumed tournament still finds their jobs finished. The
-    paper's is the hash of the layout before; ``best-demos`` and ``best`` carry the settings of
-    the presets they replaced under their new names. ``best`` took the overspeed crash penalty
-    and later the classification critic with the steer's saturation term: each gave its runs a
-    new hash, and the former ``best`` (those set back to the paper's) keeps the old."""
+    paper's is the hash of the layout before. ``best`` took the overspeed crash penalty and
+    later the classification critic with the steer's saturation term: each gave its runs a new
+    hash, and the former ``best`` (those set back to the paper's) keeps the old. ``best-demos``
+    became ``best`` with demonstrations: its former settings (``tuned-bc`` with a crash penalty)
+    keep their hash under the preset they are now written with."""
     digests = {preset: build_run_spec(variant="WIN1", train_tracks=["oval"],
                                       preset=preset).digest()
                for preset in ("paper", "best-demos", "best")}  # fmt: skip
-    assert digests == {"paper": "b96be71af1f8944f", "best-demos": "19242dd8d92773a9",
+    assert digests == {"paper": "b96be71af1f8944f", "best-demos": "8a067c02fa04c086",
                        "best": "fb1b6d477ce47dbb"}
     paper_critic = {"critic_bins": 0, "preact_penalty": 0.0, "preact_bound": (6.0, 6.0)}
     former = build_run_spec(variant="WIN1", train_tracks=["oval"], preset="best",
@@ -258,9 +259,11 @@ def test_the_reward_settings_keep_the_config_hash_of_existing_runs() -> None:
                             overrides=paper_critic,
                             env_overrides={"overspeed_crash_weight": 0.0})
     assert former.digest() == "b7cb11ff96e7fa13"
-    spec = build_run_spec(variant="WIN1", train_tracks=["oval"], preset="best-demos")
-    assert spec.agent.crash_penalty == 1000.0
-    assert R.RewardRule.of(spec.agent) == R.RewardRule(scale=0.02, crash_penalty=1000.0)
+    crash = build_run_spec(variant="WIN1", train_tracks=["oval"], preset="tuned-bc",
+                           overrides={"actor_lr": 1e-4, "crash_penalty": 1000.0,
+                                      "eval_ema_updates": 3000})  # fmt: skip
+    assert crash.digest() == "677b5ec443979c9d"
+    assert R.RewardRule.of(crash.agent) == R.RewardRule(scale=0.02, crash_penalty=1000.0)
 
 
 def test_cached_kernels_are_forgotten_when_the_tables_they_read_change(tmp_path) -> None:

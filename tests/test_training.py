@@ -367,7 +367,7 @@ def test_paper_preset_is_the_registered_variant_and_others_are_labelled(ring_tra
 def test_former_preset_names_are_errors_naming_their_replacement(ring_tracks) -> None:
     """The renamed presets say their new name, the retired ones what to use instead."""
     for former, words in (("tuned-progress", "is now 'best'"),
-                          ("tuned-bc-ema", "is now 'best-demos'"),
+                          ("tuned-bc-ema", "was retired: use 'best-demos'"),
                           ("fast", "was retired: use 'best'"),
                           ("fast-demos", "was retired: use 'best-demos'")):  # fmt: skip
         with pytest.raises(UserInputError, match=f"^preset '{former}' {words}"):
@@ -443,24 +443,24 @@ def test_tuned_bc_is_tuned_with_cloned_demonstrations(ring_tracks) -> None:
         assert RunSpec.from_json(bc.to_json(), "round trip") == bc
 
 
-def test_best_demos_changes_only_the_ddpg_family(ring_tracks) -> None:
-    """`best-demos` is `tuned-bc` plus, for the WIN variants alone (the family it was measured
-    on), actor_lr 1e-4, a crash penalty of 1 000 and tests on a 3 000-update average of the
-    actor; every other family trains exactly as under `tuned-bc`. The run is labelled by the
-    preset, not by each setting, and a user's change on top of it is still named."""
-    for variant in ("WIN1", "WIN8"):
+def test_best_demos_is_best_with_the_followers_laps(ring_tracks) -> None:
+    """`best-demos` trains every family exactly as `best` does (agent, env and schedule) and
+    adds `tuned-bc`'s demonstrations: ten follower laps on the min-curvature line, a quarter of
+    every batch, cloned at weight 0.2. The run is labelled by the preset, not by each setting,
+    and a user's change on top of it is still named."""
+    for variant in ("WIN1", "WIN8", "PER1M", "MS3", "LSTM4", "TD3", "SAC"):
+        best = build_run_spec(variant=variant, train_tracks=["ringA"], preset="best")
+        demos = build_run_spec(variant=variant, train_tracks=["ringA"], preset="best-demos")
         bc = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned-bc")
-        ema = build_run_spec(variant=variant, train_tracks=["ringA"], preset="best-demos")
-        changed = {k: v for k, v in ema.agent.model_dump().items()
-                   if v != getattr(bc.agent, k)}  # fmt: skip
-        assert changed == {"actor_lr": 1e-4, "crash_penalty": 1000.0, "eval_ema_updates": 3000}
-        assert ema.demos == bc.demos
-        assert ema.beyond_paper() == ["preset best-demos", "demos (follower on mincurv)"]
-        assert RunSpec.from_json(ema.to_json(), "round trip") == ema
-    for variant in ("PER1M", "MS3", "LSTM4", "TD3", "SAC"):
-        bc = build_run_spec(variant=variant, train_tracks=["ringA"], preset="tuned-bc")
-        ema = build_run_spec(variant=variant, train_tracks=["ringA"], preset="best-demos")
-        assert ema.agent == bc.agent, variant
+        assert demos.agent == best.agent, variant
+        assert demos.env == best.env and demos.schedule == best.schedule, variant
+        assert best.demos is None and demos.demos == bc.demos, variant
+    win1 = build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="best-demos")
+    assert (win1.agent.critic_bins, win1.env.progress_reward) == (101, True)
+    assert (win1.demos.laps, win1.demos.line, win1.demos.batch_fraction,
+            win1.demos.bc_weight) == (10, "mincurv", 0.25, 0.2)  # fmt: skip
+    assert win1.beyond_paper() == ["preset best-demos", "demos (follower on mincurv)"]
+    assert RunSpec.from_json(win1.to_json(), "round trip") == win1
     user = build_run_spec(variant="WIN1", train_tracks=["ringA"], preset="best-demos",
                           overrides={"eval_ema_updates": 1000})  # fmt: skip
     assert user.agent.eval_ema_updates == 1000

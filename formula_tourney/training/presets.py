@@ -109,12 +109,6 @@ _TUNED_FAMILIES = {"DDPG": _TUNED_DDPG, "PER": _TUNED_DDPG, "SAC": _TUNED_SAC,
 # the soonest first clean lap with good best laps of the screened demonstration settings.
 _TUNED_BC_DEMOS = {"laps": 10, "line": "mincurv", "batch_fraction": 0.25, "bc_weight": 0.2}
 
-# `best-demos`' DDPG-family settings: on top of `tuned-bc`, a lower actor learning rate and a
-# crash penalty, with tests driving an average of the actor over ~3 000 updates. Measured on
-# WIN1 only; the other families keep `tuned-bc`'s.
-_TUNED_BC_EMA_DDPG = {**_TUNED_DDPG, "actor_lr": 1e-4, "crash_penalty": 1000.0,
-                      "eval_ema_updates": 3000}  # fmt: skip
-
 # `best`'s: the paper's reward pays speed along the reference line, so every run plateaus around
 # the centre-line follower's lap; paying progress along the track (with a line term of 0.3)
 # lowers the plateau, twice `tuned`'s learning rates reach it sooner and tests on an average of
@@ -157,13 +151,15 @@ PRESETS: dict[str, Preset] = {
     ),
     "best-demos": Preset(
         name="best-demos",
-        description="The best with demonstrations: 'tuned-bc' where the DDPG family also takes "
-        "actor_lr 1e-4, a crash penalty of 1 000 and tests on a ~3 000-update average of the "
-        "actor; on technical (recorded line + LAC) WIN1 beat its demonstrator in 3 of 4 seeds "
-        "(docs/results.md; benchmarks/time_to_competence.py --track technical --reference "
-        "recorded --lac --entrants WIN1:best-demos --seeds 0,1,2,3 --budget-cpu-s 1200).",
+        description="The best with demonstrations: 'best' plus ten follower laps on the "
+        "min-curvature line as demonstrations (a quarter of every batch, Q-filtered cloning at "
+        "weight 0.2); on technical (recorded line + LAC) WIN1 beat its demonstrator in 4 of 4 "
+        "seeds, median 5.8 CPU-min (docs/results.md; benchmarks/time_to_competence.py --track "
+        "technical --reference recorded --lac --entrants WIN1:best-demos --seeds 0,1,2,3 "
+        "--budget-cpu-s 600).",
         overrides=_FAST_SMALL,
-        family_overrides={**_TUNED_FAMILIES, "DDPG": _TUNED_BC_EMA_DDPG},
+        family_overrides={**_TUNED_FAMILIES, "DDPG": _PROGRESS_DDPG},
+        env=_PROGRESS_ENV,
         demos=_TUNED_BC_DEMOS,
     ),
     "fast-small": Preset(
@@ -195,7 +191,8 @@ PRESETS: dict[str, Preset] = {
 
 REPLACED: dict[str, str] = {
     "tuned-progress": "is now 'best' (the same settings)",
-    "tuned-bc-ema": "is now 'best-demos' (the same settings)",
+    "tuned-bc-ema": "was retired: use 'best-demos' (its settings were 'tuned-bc' with "
+    "actor_lr 1e-4, crash_penalty 1000 and eval_ema_updates 3000)",
     "fast": "was retired: use 'best' (or 'fast-small', its settings with 128-128 networks)",
     "fast-demos": "was retired: use 'best-demos'",
 }
