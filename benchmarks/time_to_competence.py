@@ -32,7 +32,8 @@ stdout is one JSON object. Seeds must be consecutive (a tournament's seeds are `
     .venv/bin/python benchmarks/time_to_competence.py [--track oval] [--reference centre] [--lac]
         [--entrants WIN1:best,SAC:best,PER1M:paper,WIN1:best-demos] [--seeds 0,1,2,3]
         [--jobs 2] [--budget-cpu-s 600] [--to-budget] [--set KEY=VALUE]
-        [--anchors sb3:SAC,sb3_contrib:CrossQ | --no-sb3] [--out DIR]
+        [--anchors sb3:SAC,sb3_contrib:CrossQ | --no-sb3] [--out DIR] [--plot FILE]
+    .venv/bin/python benchmarks/time_to_competence.py --replot RUN.json[=LABEL] ... --plot FILE
 """
 
 from __future__ import annotations
@@ -460,6 +461,51 @@ def render(result: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def load_results(specs: Iterable[str]) -> dict[str, Any]:
+    """Earlier runs of this benchmark as one result for :func:`plot_curves`, so that runs made
+    apart (seeds 0-1 and 2-3, one setting against another) are drawn on one figure.
+
+    Each spec is ``PATH`` or ``PATH=LABEL``: a file holding the benchmark's JSON line (its
+    stdout, or a log with it; the last such line counts). ``LABEL`` names every entrant of that
+    file, for runs whose labels say the same thing (``WIN1:best`` before and after a preset
+    changed); entrants with one label pool their runs. The files must share a track, reference
+    and LAC, or their laps are not comparable; the bots and the limit are the first file's.
+    """
+    merged: dict[str, Any] | None = None
+    order: dict[str, dict[str, Any]] = {}
+    for spec in specs:
+        path, sep, label = spec.partition("=")
+        try:
+            lines = Path(path).read_text(encoding="utf-8").splitlines()
+        except OSError as err:
+            raise SystemExit(f"--replot: {path}: {err.strerror or err}") from None
+        found = [x for x in lines if x.startswith('{"benchmark": "time_to_competence"')]
+        if not found:
+            raise SystemExit(f"--replot: {path}: no time_to_competence result line in it")
+        try:
+            result = json.loads(found[-1])
+        except json.JSONDecodeError as err:
+            raise SystemExit(f"--replot: {path}: its result line is not JSON ({err})") from None
+        setup = ("track", "reference", "lac")
+        if merged is None:
+            merged = {**{k: result[k] for k in (*setup, "bots")},
+                      "seeds": [], "entrants": [], "anchors": []}  # fmt: skip
+        elif any(result.get(k) != merged[k] for k in setup):
+            theirs = ", ".join(f"{k} {result.get(k)}" for k in setup)
+            first = ", ".join(f"{k} {merged[k]}" for k in setup)
+            raise SystemExit(f"--replot: {path} has {theirs}; the first file {first}")
+        for entrant in _all(result):
+            name = label if sep and label else entrant["label"]
+            if name not in order:
+                order[name] = {"label": name, "runs": []}
+            order[name]["runs"] += entrant["runs"]
+        merged["seeds"] = sorted({*merged["seeds"], *result.get("seeds", [])})
+    if merged is None:
+        raise SystemExit("--replot: no file given")
+    merged["entrants"] = list(order.values())
+    return merged
+
+
 def plot_curves(result: Mapping[str, Any], out_base: Path) -> list[Path]:
     """Each run's clean test laps (dots) and best lap so far (line) against CPU-s, one colour
     per entrant, with the two followers and the reference limit as horizontal lines."""
@@ -547,7 +593,20 @@ def main() -> None:
     ap.add_argument("--out", default=None, help="folder for the tournament (default: temp)")
     ap.add_argument("--plot", default=None, metavar="FILE",
                     help="draw each run's clean test laps against CPU-s into FILE.png/.pdf")
+    ap.add_argument("--replot", action="append", default=[], metavar="PATH[=LABEL]",
+                    help="instead of running, draw earlier runs' curves (files holding this "
+                    "benchmark's JSON line, e.g. its saved stdout) on one figure into --plot; "
+                    "LABEL names the file's entrants (repeatable)")
     args = ap.parse_args()  # fmt: skip
+    if args.replot:
+        if not args.plot:
+            raise SystemExit("--replot draws into --plot FILE: give one")
+        drawn = plot_curves(load_results(args.replot), Path(args.plot))
+        for path in drawn:
+            print(f"wrote {path}", file=sys.stderr)
+        print(json.dumps({"benchmark": "time_to_competence_replot", "replot": args.replot,
+                          "wrote": [str(p) for p in drawn]}))  # fmt: skip
+        return
     seeds = parse_seeds(args.seeds)
     entrants = parse_entrants(args.entrants)
     anchors = [] if args.no_sb3 else parse_anchors(args.anchors)

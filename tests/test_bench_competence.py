@@ -163,3 +163,36 @@ def test_a_failed_run_is_summarised_and_plotted_as_a_run_that_reached_nothing(tm
               "entrants": [{"label": "WIN1:tuned", "runs": [_curve_run(), failed]}],
               "anchors": []}  # fmt: skip
     assert [p.name for p in ttc.plot_curves(result, tmp_path / "c")] == ["c.png", "c.pdf"]
+
+
+def test_replot_pools_runs_of_one_label_and_refuses_another_setup(tmp_path) -> None:
+    """``--replot`` reads each file's last result line (a log with progress lines above it
+    counts), pools the runs of entrants that share a label (a file's ``=LABEL`` renames its
+    entrants) and draws them; runs of another track or reference are refused by name."""
+    import json
+
+    def result(seed: int, label: str, track: str = "oval") -> dict:
+        run = {**_curve_run(), "seed": seed}
+        return {"benchmark": "time_to_competence", "track": track, "reference": "centre",
+                "lac": False, "seeds": [seed], "bots": vars(BOTS),
+                "entrants": [{"label": label, "runs": [run]}], "anchors": []}  # fmt: skip
+
+    first, second, other = tmp_path / "a.log", tmp_path / "b.json", tmp_path / "c.json"
+    first.write_text("WIN1-best/seed-0: cpu 1 s\n" + json.dumps(result(0, "WIN1:best")) + "\n")
+    second.write_text(json.dumps(result(1, "WIN1:best")) + "\n")
+    other.write_text(json.dumps(result(2, "WIN1:best", track="technical")) + "\n")
+    pooled = ttc.load_results([str(first), str(second)])
+    assert [e["label"] for e in pooled["entrants"]] == ["WIN1:best"]
+    assert [r["seed"] for r in pooled["entrants"][0]["runs"]] == [0, 1]
+    assert pooled["seeds"] == [0, 1] and pooled["bots"] == vars(BOTS)
+    apart = ttc.load_results([f"{first}=former best", str(second)])
+    assert [(e["label"], len(e["runs"])) for e in apart["entrants"]] == [
+        ("former best", 1), ("WIN1:best", 1)]  # fmt: skip
+    assert [p.name for p in ttc.plot_curves(apart, tmp_path / "r")] == ["r.png", "r.pdf"]
+    with pytest.raises(SystemExit, match=r"c\.json has track technical.*first file track oval"):
+        ttc.load_results([str(first), str(other)])
+    (tmp_path / "empty.log").write_text("no result here\n")
+    with pytest.raises(SystemExit, match=r"empty\.log: no time_to_competence result line"):
+        ttc.load_results([str(tmp_path / "empty.log")])
+    with pytest.raises(SystemExit, match=r"missing\.json: No such file"):
+        ttc.load_results([str(tmp_path / "missing.json")])
