@@ -130,38 +130,38 @@ _PROGRESS_DDPG = {**_TUNED_DDPG, "actor_lr": 7.4e-4, "critic_lr": 1.5e-3,
                   "preact_bound": (6.0, 50.0)}  # fmt: skip
 _PROGRESS_ENV = {"progress_reward": True, "track_pos_weight": 0.3, "overspeed_crash_weight": 0.5}
 
+_BEST = Preset(
+    name="best",
+    description="The best from scratch: 'tuned' with the reward paying progress along the "
+    "track (line term 0.3) and the overspeed crash penalty (weight 0.5) and, for the DDPG "
+    "family, twice the learning rates, tests on a ~3 000-update average of the actor, a "
+    "101-bin classification critic and the steer's saturation term; from scratch WIN1 beat "
+    "the best bot on technical in 4 of 4 seeds (median 9.5 CPU-min) and on flowing in 4 of "
+    "4 (median 6.3), and lapped the oval at 1.038 x the limit after 300 CPU-s "
+    "(docs/results.md; benchmarks/time_to_competence.py --track technical --reference "
+    "recorded --lac --entrants WIN1:best --seeds 0,1,2,3 --budget-cpu-s 1200).",
+    overrides=_FAST_SMALL,
+    family_overrides={**_TUNED_FAMILIES, "DDPG": _PROGRESS_DDPG},
+    env=_PROGRESS_ENV,
+)
+
 PRESETS: dict[str, Preset] = {
     "paper": Preset(
         name="paper",
         description="The paper's settings: the registered variant exactly as the paper defines it.",
     ),
-    "best": Preset(
-        name="best",
-        description="The best from scratch: 'tuned' with the reward paying progress along the "
-        "track (line term 0.3) and the overspeed crash penalty (weight 0.5) and, for the DDPG "
-        "family, twice the learning rates, tests on a ~3 000-update average of the actor, a "
-        "101-bin classification critic and the steer's saturation term; from scratch WIN1 beat "
-        "the best bot on technical in 4 of 4 seeds (median 9.5 CPU-min) and on flowing in 4 of "
-        "4 (median 6.3), and lapped the oval at 1.038 x the limit after 300 CPU-s "
-        "(docs/results.md; benchmarks/time_to_competence.py --track technical --reference "
-        "recorded --lac --entrants WIN1:best --seeds 0,1,2,3 --budget-cpu-s 1200).",
-        overrides=_FAST_SMALL,
-        family_overrides={**_TUNED_FAMILIES, "DDPG": _PROGRESS_DDPG},
-        env=_PROGRESS_ENV,
-    ),
-    "best-demos": Preset(
-        name="best-demos",
-        description="The best with demonstrations: 'best' plus ten follower laps on the "
+    "best": _BEST,
+    # one home for what `best` is: `best-demos` follows it when it changes
+    "best-demos": _BEST.model_copy(update={
+        "name": "best-demos",
+        "description": "The best with demonstrations: 'best' plus ten follower laps on the "
         "min-curvature line as demonstrations (a quarter of every batch, Q-filtered cloning at "
         "weight 0.2); on technical (recorded line + LAC) WIN1 beat its demonstrator in 4 of 4 "
         "seeds, median 5.8 CPU-min (docs/results.md; benchmarks/time_to_competence.py --track "
         "technical --reference recorded --lac --entrants WIN1:best-demos --seeds 0,1,2,3 "
         "--budget-cpu-s 600).",
-        overrides=_FAST_SMALL,
-        family_overrides={**_TUNED_FAMILIES, "DDPG": _PROGRESS_DDPG},
-        env=_PROGRESS_ENV,
-        demos=_TUNED_BC_DEMOS,
-    ),
+        "demos": _TUNED_BC_DEMOS,
+    }),
     "fast-small": Preset(
         name="fast-small",
         description="Batch 64, a 40k-step exploration, a 200k buffer and 128-128 networks (an "
