@@ -487,19 +487,20 @@ def load_results(specs: Iterable[str]) -> dict[str, Any]:
         except json.JSONDecodeError as err:
             raise SystemExit(f"--replot: {path}: its result line is not JSON ({err})") from None
         setup = ("track", "reference", "lac")
-        if merged is None:
-            merged = {**{k: result[k] for k in (*setup, "bots")},
-                      "seeds": [], "entrants": [], "anchors": []}  # fmt: skip
-        elif any(result.get(k) != merged[k] for k in setup):
-            theirs = ", ".join(f"{k} {result.get(k)}" for k in setup)
-            first = ", ".join(f"{k} {merged[k]}" for k in setup)
-            raise SystemExit(f"--replot: {path} has {theirs}; the first file {first}")
-        for entrant in _all(result):
-            name = label if sep and label else entrant["label"]
-            if name not in order:
-                order[name] = {"label": name, "runs": []}
-            order[name]["runs"] += entrant["runs"]
-        merged["seeds"] = sorted({*merged["seeds"], *result.get("seeds", [])})
+        try:
+            if merged is None:
+                merged = {**{k: result[k] for k in (*setup, "bots")},
+                          "seeds": [], "entrants": [], "anchors": []}  # fmt: skip
+            elif any(result.get(k) != merged[k] for k in setup):
+                theirs = ", ".join(f"{k} {result.get(k)}" for k in setup)
+                first = ", ".join(f"{k} {merged[k]}" for k in setup)
+                raise SystemExit(f"--replot: {path} has {theirs}; the first file {first}")
+            for entrant in _all(result):
+                name = label if sep and label else entrant["label"]
+                order.setdefault(name, {"label": name, "runs": []})["runs"] += entrant["runs"]
+            merged["seeds"] = sorted({*merged["seeds"], *result.get("seeds", [])})
+        except (KeyError, TypeError) as err:
+            raise SystemExit(f"--replot: {path}: its result line lacks {err}") from None
     if merged is None:
         raise SystemExit("--replot: no file given")
     merged["entrants"] = list(order.values())

@@ -196,3 +196,6 @@ def test_replot_pools_runs_of_one_label_and_refuses_another_setup(tmp_path) -> N
         ttc.load_results([str(tmp_path / "empty.log")])
     with pytest.raises(SystemExit, match=r"missing\.json: No such file"):
         ttc.load_results([str(tmp_path / "missing.json")])
+    (tmp_path / "cut.json").write_text('{"benchmark": "time_to_competence", "track": "oval"}\n')
+    with pytest.raises(SystemExit, match=r"cut\.json: its result line lacks 'reference'"):
+        ttc.load_results([str(tmp_path / "cut.json")])
