@@ -23,7 +23,6 @@ import sys  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from formula_tourney.agents.networks import MLPCritic  # noqa: E402
 from formula_tourney.training.envs import RunEnvs  # noqa: E402
 from formula_tourney.training.evaluate import (  # noqa: E402
     greedy_windows,
@@ -40,9 +39,11 @@ def main() -> None:
     ap.add_argument("--max-steps", type=int, default=3000)
     args = ap.parse_args()
     agent, spec, _ = load_run_checkpoint(args.checkpoint)
-    if not isinstance(agent.critic, MLPCritic):
-        sys.exit(f"error: {args.checkpoint}: reads one MLP critic (the DDPG family's), not a "
-                 f"{type(agent.critic).__name__}")  # before the drive, not at its first step
+    try:  # one read before the drive: a critic it cannot read is refused here, not mid-drive
+        agent.eval_q(np.zeros((agent.cfg.window, agent.obs_dim), np.float32),
+                     np.zeros(agent.action_dim, np.float32))  # fmt: skip
+    except TypeError as err:
+        sys.exit(f"error: {args.checkpoint}: {err}")
     envs = RunEnvs(spec, extra_tracks=[args.track])
     env = envs.make(args.track, test=True, max_steps=args.max_steps)
     qs: list[float] = []
