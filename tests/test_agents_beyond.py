@@ -344,7 +344,7 @@ NEW_FIELDS = {
     "bn_momentum": 0.01, "crossq_adam_beta1": 0.5, "crossq_policy_delay": 3,
     "critic_layer_norm": False, "crash_penalty_decay_steps": 0, "preact_penalty": 0.0,
     "preact_bound": [6.0, 6.0], "obs_norm": False, "critic_bins": 0,
-    "critic_value_range": [-100.0, 100.0],
+    "critic_value_range": [-100.0, 100.0], "critic_sigma_bins": 0.75,
 }  # fmt: skip
 # AgentConfig().model_dump(mode="json") and each paper variant's changes from it, before
 # TD3 and SAC existed

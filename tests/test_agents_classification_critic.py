@@ -43,6 +43,24 @@ def test_the_target_histogram_has_the_targets_mean_and_spread() -> None:
     assert float(far[0, -1]) > 0.8 and float(far[0] @ centres) > 9.5
 
 
+def test_a_wider_target_spreads_its_mass_over_more_bins() -> None:
+    """``critic_sigma_bins`` sets the target's spread in bin widths, from the settings to the
+    loss: 2 bin widths put ~20 % of the mass in the target's own bin (0.75: ~50 %)."""
+    edges = torch.linspace(-10.0, 10.0, 41, dtype=torch.float64)  # 40 bins of 0.5
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    y = torch.tensor([0.25], dtype=torch.float64)  # the middle of the bin [0, 0.5]
+    narrow, wide = hl_gauss_targets(y, edges), hl_gauss_targets(y, edges, 2.0)
+    own = 20  # the bin [0, 0.5]
+    # the normal's mass within +-0.5 / sigma standard deviations: erf(0.5 / (sigma sqrt 2))
+    assert float(narrow[0, own]) == pytest.approx(0.4950, abs=1e-3)
+    assert float(wide[0, own]) == pytest.approx(0.1974, abs=1e-3)
+    np.testing.assert_allclose(float(wide[0] @ centres), 0.25, atol=1e-9)
+    cfg = get_variant("WIN1", {**SMALL, "critic_bins": 41, "critic_value_range": (-10.0, 10.0),
+                               "critic_sigma_bins": 2.0})  # fmt: skip
+    agent = make_agent(cfg, D, seed=0)
+    assert agent.critic.sigma_bins == 2.0 and agent._mlp_update.sigma_bins == 2.0
+
+
 def test_q_is_the_softmax_mean_of_the_bin_centres() -> None:
     critic = MLPCritic(D, 3, 1, (16, 8), bins=5, value_range=(-10.0, 10.0))
     np.testing.assert_allclose(critic.centres.numpy(), [-8.0, -4.0, 0.0, 4.0, 8.0])
@@ -94,7 +112,9 @@ def test_checkpoints_round_trip_and_settings_are_checked(tmp_path: Path) -> None
     for bad, words in (({"critic_bins": 1}, "not 1"),
                        ({"critic_bins": 11, "critic_value_range": (5.0, 5.0)}, "must be below"),
                        ({"critic_bins": 11, "lstm_critic": True}, "not lstm_critic"),
-                       ({"critic_value_range": (-5.0, 5.0)}, "needs critic_bins")):  # fmt: skip
+                       ({"critic_value_range": (-5.0, 5.0)}, "needs critic_bins"),
+                       ({"critic_sigma_bins": 1.5}, "needs critic_bins"),
+                       ({"critic_bins": 11, "critic_sigma_bins": 0.0}, "greater than 0")):  # fmt: skip
         with pytest.raises(UserInputError, match=words):
             get_variant("WIN1", bad)
     with pytest.raises(UserInputError, match="critic_bins apply to algorithm ddpg only"):

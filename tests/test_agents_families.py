@@ -145,11 +145,12 @@ def test_a_familys_settings_are_its_own(algorithm: str, key: str) -> None:
         if key == "critic_bins" and variant.lstm_critic:  # the MLP critic's alone
             with pytest.raises(UserInputError, match="not lstm_critic"):
                 get_variant(name, {key: value})
-        elif key == "critic_value_range" and variant.algorithm == algorithm:  # the bins' span
+        elif key in ("critic_value_range", "critic_sigma_bins") and variant.algorithm == algorithm:
+            # the bins' span and their target's spread
             with pytest.raises(UserInputError, match="needs critic_bins"):
                 get_variant(name, {key: value})
             if not variant.lstm_critic:
-                assert get_variant(name, {key: value, "critic_bins": 2}).critic_value_range == value
+                assert getattr(get_variant(name, {key: value, "critic_bins": 2}), key) == value
         elif variant.algorithm == algorithm:
             assert getattr(get_variant(name, {key: value}), key) == value
         else:
@@ -161,7 +162,7 @@ def test_a_familys_settings_are_its_own(algorithm: str, key: str) -> None:
 def test_each_setting_is_declared_once() -> None:
     """The shared settings and every family's own are disjoint, and AgentConfig is their union."""
     own = [k for family in ALGORITHMS.values() for k in family.settings.model_fields]
-    assert len(own) == len(set(own)) == 16
+    assert len(own) == len(set(own)) == 17
     assert not set(own) & set(SharedSettings.model_fields)
     assert set(AgentConfig.model_fields) == set(SharedSettings.model_fields) | set(own)
     assert all(AgentConfig.model_fields[k].description for k in AgentConfig.model_fields)

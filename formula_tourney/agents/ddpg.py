@@ -25,7 +25,13 @@ from pydantic import Field, model_validator
 from torch import nn
 
 from formula_tourney.agents.core import Agent, FamilySettings
-from formula_tourney.agents.networks import Actor, LSTMCritic, MLPCritic, hl_gauss_targets
+from formula_tourney.agents.networks import (
+    HL_GAUSS_SIGMA_BINS,
+    Actor,
+    LSTMCritic,
+    MLPCritic,
+    hl_gauss_targets,
+)
 from formula_tourney.field_marks import marks
 
 PreactBound = Annotated[float, Field(gt=0.0, le=50.0)]
@@ -88,6 +94,17 @@ class DDPGSettings(FamilySettings):
         "lstm_critic.",
         json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
     )
+    critic_sigma_bins: float = Field(
+        HL_GAUSS_SIGMA_BINS,
+        gt=0.0,
+        le=10.0,
+        description="Beyond the paper: the spread of the classification critic's target "
+        "(critic_bins), in bin widths: the HL-Gauss histogram is a normal of this many bin "
+        "widths around y. Farebrother et al. (2024) recommend 0.75; a wider one shares each "
+        "target among more bins (a smoother, blunter critic) without coarsening the bins "
+        "themselves. Needs critic_bins.",
+        json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
+    )
     critic_value_range: tuple[ValueBound, ValueBound] = Field(
         (-100.0, 100.0),
         description="Beyond the paper: the lowest and highest Q the classification critic "
@@ -110,6 +127,10 @@ class DDPGSettings(FamilySettings):
         # (on another family's variant the flat config refuses every DDPG setting instead)
         own = getattr(self, "algorithm", "ddpg") == "ddpg"
         default_range = type(self).model_fields["critic_value_range"].default
+        default_sigma = type(self).model_fields["critic_sigma_bins"].default
+        if own and not self.critic_bins and self.critic_sigma_bins != default_sigma:
+            raise ValueError("critic_sigma_bins is the spread of critic_bins' target: it needs "
+                             "critic_bins of 2 or more")  # fmt: skip
         if own and not self.critic_bins and tuple(self.critic_value_range) != default_range:
             raise ValueError("critic_value_range is the span of critic_bins: it needs "
                              "critic_bins of 2 or more")  # fmt: skip
@@ -136,7 +157,7 @@ class DDPGAgent(Agent):
                               cfg.lstm_hidden, cfg.hidden[1])  # fmt: skip
         return MLPCritic(self.obs_dim, self.action_dim, cfg.window, cfg.hidden,
                          cfg.critic_layer_norm, max(1, cfg.critic_bins),
-                         cfg.critic_value_range)  # fmt: skip
+                         cfg.critic_value_range, cfg.critic_sigma_bins)  # fmt: skip
 
     @torch.no_grad()
     def target(
@@ -163,7 +184,7 @@ class DDPGAgent(Agent):
             return super().critic_loss(td, y, weights)
         critic = self.critic
         assert isinstance(critic, MLPCritic)
-        target = hl_gauss_targets(y, critic.edges)
+        target = hl_gauss_targets(y, critic.edges, critic.sigma_bins)
         cross_entropy = -(target * torch.log_softmax(self._q_logits, dim=1)).sum(1)
         return (weights * cross_entropy).mean()
 

@@ -145,6 +145,10 @@ class GreedyAct:
         return pi[0].cpu().numpy().copy()
 
 
+HL_GAUSS_SIGMA_BINS = 0.75
+"""The histogram loss's spread in bin widths: Farebrother et al.'s (2024) recommended ratio."""
+
+
 class MLPCritic(nn.Module):
     """Q(s, a): flattened state window -> h1, [h1, a] -> h2 -> Q (action at the second layer).
 
@@ -156,7 +160,8 @@ class MLPCritic(nn.Module):
     With ``bins > 1`` (beyond the paper: a classification critic, Farebrother et al. 2024) the
     last layer gives logits over ``bins`` equal bins spanning ``value_range``, and Q is the
     softmax's mean of the bin centres: ``forward`` and ``q_pair`` return that value, and
-    ``logits_pair`` the logits the cross-entropy loss (``hl_gauss_targets``) trains.
+    ``logits_pair`` the logits the cross-entropy loss (``hl_gauss_targets``, with a normal of
+    ``sigma_bins`` bin widths) trains.
     """
 
     recurrent = False
@@ -170,10 +175,12 @@ class MLPCritic(nn.Module):
         layer_norm: bool = False,
         bins: int = 1,
         value_range: tuple[float, float] = (0.0, 0.0),
+        sigma_bins: float = HL_GAUSS_SIGMA_BINS,
     ) -> None:
         super().__init__()
         self.layer_norm = layer_norm
         self.bins = int(bins)
+        self.sigma_bins = float(sigma_bins)  # the HL-Gauss target's spread (hl_gauss_targets)
         self.window = window
         self.l1 = _fan_in_init(nn.Linear(obs_dim * window, hidden[0]))
         # the second layer's weight is split into its h1 and action columns: W2 [h1, a] =
@@ -241,10 +248,6 @@ class MLPCritic(nn.Module):
             torch.relu_(self.norm2(torch.addmm(base.detach(), policy_action, w_a)))
         ))  # fmt: skip
         return out, q_pi
-
-
-HL_GAUSS_SIGMA_BINS = 0.75
-"""The histogram loss's spread in bin widths: Farebrother et al.'s (2024) recommended ratio."""
 
 
 def hl_gauss_targets(
