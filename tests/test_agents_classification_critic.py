@@ -114,7 +114,8 @@ def test_checkpoints_round_trip_and_settings_are_checked(tmp_path: Path) -> None
                        ({"critic_bins": 11, "lstm_critic": True}, "not lstm_critic"),
                        ({"critic_value_range": (-5.0, 5.0)}, "needs critic_bins"),
                        ({"critic_sigma_bins": 1.5}, "needs critic_bins"),
-                       ({"critic_bins": 11, "critic_sigma_bins": 0.0}, "greater than 0")):  # fmt: skip
+                       ({"critic_bins": 11, "critic_sigma_bins": 0.0}, "greater than 0"),
+                       ):  # fmt: skip
         with pytest.raises(UserInputError, match=words):
             get_variant("WIN1", bad)
     with pytest.raises(UserInputError, match="critic_bins apply to algorithm ddpg only"):
