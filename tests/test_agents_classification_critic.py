@@ -58,7 +58,34 @@ def test_a_wider_target_spreads_its_mass_over_more_bins() -> None:
     cfg = get_variant("WIN1", {**SMALL, "critic_bins": 41, "critic_value_range": (-10.0, 10.0),
                                "critic_sigma_bins": 2.0})  # fmt: skip
     agent = make_agent(cfg, D, seed=0)
-    assert agent.critic.sigma_bins == 2.0 and agent._mlp_update.sigma_bins == 2.0
+    assert agent.critic.sigma_bins == 2.0 and agent._mlp_update._critic is agent.critic
+
+
+def test_the_target_narrows_over_its_warm_up_in_both_updates() -> None:
+    """``critic_sigma_start_bins`` 3 over ``critic_sigma_warmup_updates`` 4 to 0.75: 3, 2.4375,
+    1.875, 1.3125, then 0.75 for good, read by the hand-written update and autograd's alike."""
+    over = {**SMALL, "critic_bins": 11, "critic_value_range": (-0.5, 0.5),
+            "critic_sigma_start_bins": 3.0, "critic_sigma_warmup_updates": 4}  # fmt: skip
+    cfg = get_variant("WIN1", over)
+    manual, reference = make_agent(cfg, D, seed=1), make_agent(cfg, D, seed=1)
+    buf = _constant_target_buffer(0.2)
+    widths = []
+    for _ in range(6):
+        widths.append(manual.target_sigma_bins())
+        batch = buf.sample(16)
+        info_m = manual.update(batch)
+        reference.critic.sigma_bins = reference.target_sigma_bins()
+        info_r = reference._update_autograd(batch)
+        reference.updates = manual.updates
+        np.testing.assert_allclose(info_m, info_r, rtol=1e-4, atol=1e-6)
+    np.testing.assert_allclose(widths, [3.0, 2.4375, 1.875, 1.3125, 0.75, 0.75])
+    assert manual.critic.sigma_bins == 0.75
+    for bad in ({"critic_bins": 11, "critic_sigma_start_bins": 3.0},
+                {"critic_bins": 11, "critic_sigma_warmup_updates": 4}):  # fmt: skip
+        with pytest.raises(UserInputError, match="both or neither"):
+            get_variant("WIN1", bad)
+    with pytest.raises(UserInputError, match="needs critic_bins"):
+        get_variant("WIN1", {"critic_sigma_start_bins": 3.0, "critic_sigma_warmup_updates": 4})
 
 
 def test_q_is_the_softmax_mean_of_the_bin_centres() -> None:

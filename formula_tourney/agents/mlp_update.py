@@ -209,7 +209,7 @@ class MLPUpdate:
         self.bins = critic.bins
         if self.bins > 1:
             self.edges, self.centres = critic.edges, critic.centres.view(-1, 1)
-            self.sigma_bins = critic.sigma_bins
+            self._critic = critic  # its sigma_bins may follow a schedule (DDPG's warm-up)
         self.saturation = saturation if saturation is not None and saturation.weight else None
         self._ws: _Workspace | None = None
 
@@ -341,7 +341,7 @@ class MLPUpdate:
         gradient at the logits, and -2 times its value into ``ws.stats_td`` (where the squared
         error's -2 L(Q) goes), t the HL-Gauss histogram of ``ws.y``."""
         B = ws.batch  # noqa: N806
-        target = hl_gauss_targets(ws.y.view(-1), self.edges, self.sigma_bins)
+        target = hl_gauss_targets(ws.y.view(-1), self.edges, self._critic.sigma_bins)
         torch.sub(ws.p[:B], target, out=ws.g_logits).mul_(weights / B)
         log_p = torch.log_softmax(ws.logits[:B], 1)
         per_row = target.mul_(log_p).sum(1)  # sum_k t_k log p_k
