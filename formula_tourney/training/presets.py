@@ -157,9 +157,8 @@ PRESETS: dict[str, Preset] = {
         "description": "The best with demonstrations: 'best' plus ten follower laps on the "
         "min-curvature line as demonstrations (a quarter of every batch, Q-filtered cloning at "
         "weight 0.2); on technical (recorded line + LAC) WIN1 beat its demonstrator in 4 of 4 "
-        "seeds, median 5.8 CPU-min, and lapped at 1.038-1.043 x the limit after 60 CPU-min (4 "
-        "seeds) "
-        "(docs/results.md; benchmarks/time_to_competence.py --track technical --reference "
+        "seeds, median 5.8 CPU-min, and lapped at 1.038-1.043 x the limit after 60 CPU-min, "
+        "4 seeds (docs/results.md; benchmarks/time_to_competence.py --track technical --reference "
         "recorded --lac --entrants WIN1:best-demos --seeds 0,1,2,3 --budget-cpu-s 600).",
         "demos": _TUNED_BC_DEMOS,
     }),
