@@ -40,6 +40,11 @@ PreactBound = Annotated[float, Field(gt=0.0, le=50.0)]
 ValueBound = Annotated[float, Field(ge=-1e6, le=1e6)]
 
 
+_SHAPES_OF_THE_BINS = ("critic_value_range", "critic_sigma_bins", "critic_sigma_start_bins",
+                       "critic_sigma_warmup_updates")  # fmt: skip
+"""Settings of the classification critic alone: away from their defaults they need bins."""
+
+
 class DDPGSettings(FamilySettings):
     """The DDPG family's own settings: its LSTM critic (the LSTM variants)."""
 
@@ -147,20 +152,16 @@ class DDPGSettings(FamilySettings):
             raise ValueError("critic_bins applies to the MLP critic, not lstm_critic")
         # (on another family's variant the flat config refuses every DDPG setting instead)
         own = getattr(self, "algorithm", "ddpg") == "ddpg"
-        default_range = type(self).model_fields["critic_value_range"].default
-        default_sigma = type(self).model_fields["critic_sigma_bins"].default
-        if own and not self.critic_bins and self.critic_sigma_bins != default_sigma:
-            raise ValueError("critic_sigma_bins is the spread of critic_bins' target: it needs "
-                             "critic_bins of 2 or more")  # fmt: skip
         if own and bool(self.critic_sigma_start_bins) != bool(self.critic_sigma_warmup_updates):
             raise ValueError("critic_sigma_start_bins and critic_sigma_warmup_updates set the "
                              "target's warm-up together: both or neither")  # fmt: skip
-        if own and not self.critic_bins and self.critic_sigma_warmup_updates:
-            raise ValueError("critic_sigma_warmup_updates narrows critic_bins' target: it needs "
-                             "critic_bins of 2 or more")  # fmt: skip
-        if own and not self.critic_bins and tuple(self.critic_value_range) != default_range:
-            raise ValueError("critic_value_range is the span of critic_bins: it needs "
-                             "critic_bins of 2 or more")  # fmt: skip
+        if own and not self.critic_bins:
+            for name in _SHAPES_OF_THE_BINS:
+                default = type(self).model_fields[name].default
+                value = getattr(self, name)
+                if (tuple(value) if isinstance(value, tuple | list) else value) != default:
+                    raise ValueError(f"{name} shapes the classification critic: it needs "
+                                     "critic_bins of 2 or more")  # fmt: skip
         return self
 
 
