@@ -15,6 +15,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import torch
 from PIL import Image
@@ -25,6 +26,7 @@ from formula_tourney.agents.core import Agent
 from formula_tourney.cli import main
 from formula_tourney.results import metrics
 from formula_tourney.results.folder import JobFolder
+from formula_tourney.results.layout import TRACE_COLUMNS
 from formula_tourney.training import loop
 from formula_tourney.training.evaluate import start_positions
 from formula_tourney.training.replay import best_test, replay, replay_best
@@ -108,6 +110,26 @@ def test_replay_cli_takes_a_test_rows_start_grip_and_seed(job: Path, capsys) -> 
     assert "--best drives the best test's own start, grip and seed" in capsys.readouterr().err
     assert _cli("replay", str(job), "--best", "--track", "elsewhere") == 2
     assert "no test on 'elsewhere'; tested on: ring" in capsys.readouterr().err
+
+
+def test_replay_trace_holds_every_step_of_the_drive(job: Path, tmp_path: Path, capsys) -> None:
+    row = JobFolder(job).tests().sort_values("best_lap_s").iloc[0]
+    ckpt = job / "checkpoints" / "best.pt"
+    drive = ["replay", str(ckpt), "--start-s-m", str(row["start_s_m"]), "--seed", "5001"]
+    assert _cli(*drive, "--trace", str(tmp_path / "steps.csv"), "--json") == 0
+    out = json.loads(capsys.readouterr().out)
+    steps = pd.read_csv(tmp_path / "steps.csv")
+    assert len(steps) == out["steps"] and out["trace"] == str(tmp_path / "steps.csv")
+    assert list(steps.columns) == [*TRACE_COLUMNS, "laps"]
+    assert steps["laps"].iloc[-1] == len(out["lap_times_s"]) >= 1  # the lap the row recorded
+    assert steps["distance_m"].is_monotonic_increasing
+    # Parquet by its suffix: the same steps
+    assert _cli(*drive, "--trace", str(tmp_path / "steps.parquet")) == 0
+    again = pd.read_parquet(tmp_path / "steps.parquet")
+    assert np.allclose(again.to_numpy(), steps.to_numpy(), rtol=1e-5)
+    # another suffix is refused before the drive, and nothing is written
+    assert _cli(*drive, "--trace", str(tmp_path / "steps.txt")) == 2
+    assert "--trace" in capsys.readouterr().err and not (tmp_path / "steps.txt").exists()
 
 
 def _cli(*args: str) -> int:

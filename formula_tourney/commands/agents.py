@@ -232,6 +232,9 @@ def register(app: typer.Typer) -> None:
         gif: Path | None = typer.Option(
             None, "--gif", help="GIF to write: the drive's best clean lap, or the whole drive "
             "without one."),
+        trace: Path | None = typer.Option(
+            None, "--trace", help="File to write every step of the drive to (.csv or .parquet): "
+            "time, distance, position, speed, steer, pedals, laps."),
         max_steps: int | None = typer.Option(
             None, "--max-steps", min=1, help="Control steps at most (default: the run's "
             "test_max_steps, as its tests)."),
@@ -246,8 +249,10 @@ def register(app: typer.Typer) -> None:
 
         if gif is not None:
             check_output_path(gif, "--gif")  # before the drive, not after it
+        if trace is not None:
+            check_output_path(trace, "--trace")
         options: dict[str, Any] = {"max_steps": max_steps, "frame_every": frame_every,
-                                   "device": device}
+                                   "device": device, "trace": trace}
         if best:
             given = [name for name, value in (("--start-s-m", start_s_m), ("--grip", grip),
                                               ("--seed", seed)) if value is not None]
@@ -275,6 +280,8 @@ def register(app: typer.Typer) -> None:
                              + ("reproduced" if summary["reproduced"] else "NOT reproduced"))
             if summary["gif"]:
                 lines.append(f"{summary['gif']}: {summary['frames']} frames")
+            if summary["trace"]:
+                lines.append(f"{summary['trace']}: {summary['steps']} steps")
             for line in lines:
                 console.print(line, markup=False, highlight=False)
 

@@ -9,6 +9,10 @@ the job's tests: the run's best clean lap as every table computes it (``results.
 the checkpoint that drove it. Replay starting at the line instead of the test's start drove
 another lap than the table's (a 78.82 s lap from 1 635 m became no timed lap at all).
 
+``--trace FILE`` (``.csv`` or ``.parquet``) writes every step of the drive (time, distance,
+position on the track, speed, steer and pedals, laps) for reading where a drive is lost: a
+crash shows as the steps before it (how fast the car met the corner, where it braked).
+
 The GIF shows the best clean lap of the drive (the whole drive when it has none) in the race
 GIF's look (``sim.multicar.frames``): the track drawn once, the car stamped large enough to see
 with the line it has driven so far, and a column with the lap, its running time and the speed.
@@ -28,6 +32,7 @@ from formula_tourney.errors import UserInputError
 from formula_tourney.results import metrics
 from formula_tourney.results.folder import JobFolder
 from formula_tourney.results.layout import BEST_CHECKPOINT, CHECKPOINTS_DIR
+from formula_tourney.safeio import atomic_write_parquet, atomic_write_text
 from formula_tourney.sim.draw import MIN_CAR_PX, TrackRenderer
 from formula_tourney.sim.multicar.frames import (
     COLUMN_PX,
@@ -120,20 +125,37 @@ def seed_for_start(spec: RunSpec, length_m: float, start_s_m: float) -> int:
     return drive_seed(spec.seed, index)
 
 
+TRACE_SUFFIXES = (".csv", ".parquet")
+"""What ``--trace`` writes: a table of the drive's steps, for a spreadsheet or for pandas."""
+
+
+def write_trace(path: Path, steps: Any) -> Path:
+    """Every step of a drive (``DriveResult.steps_trace``) to ``path``, CSV or Parquet by its
+    suffix, atomically."""
+    if path.suffix.lower() == ".parquet":
+        return atomic_write_parquet(path, steps)
+    return atomic_write_text(path, steps.to_csv(index=False, float_format="%.6g"))
+
+
 def replay(checkpoint: str | Path, track: str | None = None, gif: str | Path | None = None, *,
            start_s_m: float | None = None, grip_scale: float | None = None,
            seed: int | None = None, max_steps: int | None = None, frame_every: int = 2,
-           device: str = "cpu", episode: int | None = None) -> dict[str, Any]:
+           device: str = "cpu", episode: int | None = None,
+           trace: str | Path | None = None) -> dict[str, Any]:
     """Drive one test of the checkpoint's actor as the run's tests drive it; returns its laps.
 
     Defaults are the run's: its key track, its first test start (50 m before the line), its
     grip, the seed its tests use at that start and its ``test_max_steps``. ``gif`` (optional)
     gets the best clean lap of the drive, or the whole drive when it has none. ``episode``:
     the test round the checkpoint must hold (a test row's), refused before driving otherwise.
+    ``trace`` (optional, ``.csv`` or ``.parquet``) gets every step of the drive.
     """
     checkpoint = Path(checkpoint)
     if gif is not None and Path(gif).suffix.lower() != ".gif":
         raise UserInputError(f"--gif {gif}: the file name must end in .gif")
+    if trace is not None and Path(trace).suffix.lower() not in TRACE_SUFFIXES:
+        raise UserInputError(f"--trace {trace}: the file name must end in "
+                             f"{' or '.join(TRACE_SUFFIXES)}")
     if frame_every < 1 or (max_steps is not None and max_steps < 1):
         raise UserInputError("replay: --frame-every and --max-steps must be >= 1")
     if not checkpoint.is_file():
@@ -151,7 +173,8 @@ def replay(checkpoint: str | Path, track: str | None = None, gif: str | Path | N
     env = envs.make(track, test=True, max_steps=max_steps, grip_scale=grip_scale)
     try:
         check_observation_size(env, agent, checkpoint)
-        drive = run_test_episode(agent, env, track, start, seed=seed, keep_steps=gif is not None)
+        drive = run_test_episode(agent, env, track, start, seed=seed,
+                                 keep_steps=gif is not None or trace is not None)
     finally:
         env.close()
     summary: dict[str, Any] = {
@@ -160,8 +183,10 @@ def replay(checkpoint: str | Path, track: str | None = None, gif: str | Path | N
         "seed": seed, "lap_times_s": drive.lap_times_s, "lap_damage": drive.lap_damage,
         "best_lap_s": None if math.isnan(drive.best_lap_s) else drive.best_lap_s,
         "termination": drive.termination, "steps": drive.steps, "damage": drive.damage,
-        "reward": drive.reward, "gif": None, "frames": 0,
+        "reward": drive.reward, "gif": None, "frames": 0, "trace": None,
     }
+    if trace is not None:
+        summary["trace"] = str(write_trace(Path(trace), drive.steps_trace))
     if gif is not None:
         title = f"{spec.variant} seed {spec.seed}" + (
             f", episode {extra['episode']}" if extra.get("episode") is not None else "")
