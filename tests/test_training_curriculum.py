@@ -73,3 +73,39 @@ def test_the_run_fills_training_envs_only_and_labels_the_run() -> None:
     with pytest.raises(UserInputError, match="curriculum_starts_m"):
         build_run_spec(variant="WIN1", train_tracks=["technical"],
                        env_overrides={"curriculum_starts_m": [10.0]})  # fmt: skip
+
+
+def test_curriculum_starts_roll_at_a_fraction_of_the_limit_speed() -> None:
+    """From rest the car reaches a hairpin too slowly to need the brakes; with
+    start_curriculum_speed a placed start rolls at that fraction of the limit's speed there."""
+    spec = build_run_spec(variant="WIN1", train_tracks=["technical"],
+                          env_overrides={"start_curriculum": "braking",
+                                         "start_curriculum_share": 1.0,
+                                         "start_curriculum_speed": 0.8})  # fmt: skip
+    assert "start_curriculum_speed 0.8" in spec.beyond_paper()
+    envs = RunEnvs(spec)
+    train = envs.config("technical", test=False)
+    vlim = np.asarray(train.limit_speeds_mps)
+    track = envs.tracks["technical"]
+    assert len(vlim) == track.n  # the run filled the limit's speeds for the starts
+    env = FormulaRacingEnv(config=train)
+    for seed in range(20):
+        _, info = env.reset(seed=seed)
+        i = int(np.searchsorted(track.s_m, info["s_m"], side="right") - 1)
+        assert info["speed_mps"] == pytest.approx(0.8 * vlim[i], rel=1e-6)
+        assert info["speed_mps"] > 15.0  # not at rest: before a braking zone the car is fast
+    # the vector autoreset gives its placed cars the same speeds
+    venv = FormulaRacingVectorEnv(64, config=train)
+    venv.reset(seed=0)
+    venv._needs_reset[:] = True
+    _, _, _, _, info = venv.step(np.zeros((64, 3)))  # reset, then one 0.2 s step coasting
+    idx = np.searchsorted(track.s_m, info["s_m"], side="right") - 1
+    assert (info["speed_mps"] > 15.0).all()
+    assert np.allclose(info["speed_mps"], 0.8 * vlim[idx], rtol=0.03)
+    # tests start as always: at rest, no curriculum
+    test = envs.config("technical", test=True)
+    assert test.start_curriculum_speed == 0.0 and test.start_curriculum == "none"
+    # without the curriculum the setting has no starts to speed up: refused before any run
+    with pytest.raises(UserInputError, match="needs start_curriculum 'braking'"):
+        build_run_spec(variant="WIN1", train_tracks=["technical"],
+                       env_overrides={"start_curriculum_speed": 0.8})  # fmt: skip

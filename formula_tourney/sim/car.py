@@ -99,14 +99,20 @@ def set_start(row: np.ndarray, car: CarParams, x_m: float, y_m: float, heading_r
     row[K.ST_X] = x_m
     row[K.ST_Y] = y_m
     row[K.ST_PSI] = heading_rad
+    set_rolling(row, car, speed_mps)
+    row[K.ST_IDX] = -1.0
+    row[K.ST_LAP_START] = -1.0
+
+
+def set_rolling(row: np.ndarray, car: CarParams, speed_mps: float) -> None:
+    """Make one car (a state row) roll straight at ``speed_mps``: its speed, wheels, gear and
+    engine speed agree, as if it had driven up to that speed."""
     row[K.ST_VX] = speed_mps
     row[K.ST_W_FL:K.ST_W_RR + 1] = speed_mps / car.wheel_radius_m
     g = gear_for_speed(car, speed_mps)
     row[K.ST_GEAR] = g
     rpm = speed_mps / car.wheel_radius_m * car.gear_ratios[g] * car.final_drive * 60 / (2 * math.pi)
     row[K.ST_RPM] = max(rpm, car.idle_rpm)
-    row[K.ST_IDX] = -1.0
-    row[K.ST_LAP_START] = -1.0
 
 
 class CarBatch:

@@ -172,6 +172,14 @@ class EnvSettings(BaseModel):
         "places (the rest start as random_start says).",
         json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
     )
+    start_curriculum_speed: Annotated[Real, Field(ge=0.0, le=1.0)] = Field(
+        0.0,
+        description="Beyond the paper: a curriculum start rolls at this fraction of the "
+        "reference limit's speed there (limit_speeds_mps, which a training run fills), so the "
+        "car meets the braking zone as fast as a lap would bring it: from rest it reaches a "
+        "hairpin too slowly to need the brakes. 0: at start_speed_mps, as other starts.",
+        json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
+    )
     car: dict[str, Any] = Field(
         default_factory=dict,
         description="Overrides of the car's physical constants (keys of sim.car_params."
@@ -206,6 +214,13 @@ class EnvSettings(BaseModel):
                 raise ValueError("grip_scale_range and grip_drying: set one, not both")
             if self.grip_scale != 1.0:
                 raise ValueError("grip_scale_range replaces grip_scale: leave grip_scale at 1")
+        return self
+
+    @model_validator(mode="after")
+    def _curriculum_speed_has_curriculum(self) -> EnvSettings:
+        if self.start_curriculum_speed > 0.0 and self.start_curriculum == "none":
+            raise ValueError("start_curriculum_speed sets the speed of the start curriculum's "
+                             "starts: it needs start_curriculum 'braking'")
         return self
 
     def car_params(self) -> CarParams:
@@ -272,6 +287,15 @@ class EnvConfig(EnvSettings):
             raise ValueError(
                 f"start_curriculum {self.start_curriculum!r} needs curriculum_starts_m (a "
                 "training run fills them: training.curriculum.braking_starts)"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _curriculum_speed_has_limit_speeds(self) -> EnvConfig:
+        if self.start_curriculum_speed > 0.0 and not self.limit_speeds_mps:
+            raise ValueError(
+                "start_curriculum_speed needs limit_speeds_mps, the limit's speed at each track "
+                "sample (a training run fills them: training.envs.RunEnvs)"
             )
         return self
 

@@ -22,7 +22,7 @@ from gymnasium.vector.utils import batch_space
 from formula_tourney.errors import UserInputError
 from formula_tourney.sim import kernels as K
 from formula_tourney.sim import reward as R
-from formula_tourney.sim.car import pack_params, set_start
+from formula_tourney.sim.car import pack_params, set_rolling, set_start
 from formula_tourney.sim.catalog import load_track
 from formula_tourney.sim.config import EnvConfig, ResetOptions, default_config
 from formula_tourney.sim.draw import TrackRenderer
@@ -93,6 +93,7 @@ class _Batch:
         # beyond the paper: the start curriculum's positions and share (none: no draws at all)
         self.curriculum_starts = np.asarray(cfg.curriculum_starts_m, dtype=float)
         self.curriculum_share = cfg.start_curriculum_share
+        self.curriculum_speed = cfg.start_curriculum_speed  # x the limit's speed; 0: start_speed
         self.grass_w = cfg.grass_width_m
         self.cfg = np.zeros(K.N_CFG)
         c = self.cfg
@@ -198,16 +199,23 @@ class _Batch:
         """Place car ``c`` for a new episode; the next kernel call only observes it."""
         opts = ResetOptions.parse(options)  # an instance passes through unchecked
         curriculum = self.curriculum_starts
+        placed = False
         if opts.start_s_m is not None:
             s = opts.start_s_m
         elif len(curriculum) and rng.random() < self.curriculum_share:
             s = float(curriculum[rng.integers(len(curriculum))])
+            placed = True
         elif self.random_start:
             s = float(rng.uniform(0.0, self.track.length_m))
         else:
             s = self.track.length_m - DEFAULT_START_BEFORE_LINE_M
-        speed = self.start_speed if opts.start_speed_mps is None else opts.start_speed_mps
         x, y, h, i = self.start_pose(s)
+        if opts.start_speed_mps is not None:
+            speed = opts.start_speed_mps
+        elif placed and self.curriculum_speed > 0.0:
+            speed = self.curriculum_speed * float(self.geom[i, K.G_VLIM])
+        else:
+            speed = self.start_speed
         set_start(self.state[c], self.car, x, y, h, speed)
         self.state[c, K.ST_IDX] = i  # projection hint: a local search, not a global scan
         if self.grip_range is not None:  # drawn after the start: no draw moves without a range
@@ -242,6 +250,10 @@ class _Batch:
                 tr.s_m, ref.x_m, ref.y_m, ref.heading_rad))
         K.reset_rows(self.state, self.integrate, np.asarray(cars, dtype=np.int64), s,
                      self._start_row, *self._reset_arrays, float(tr.length_m))
+        if len(curriculum) and self.curriculum_speed > 0.0:  # placed starts roll at speed
+            for c in np.asarray(cars)[placed]:
+                vlim = float(self.geom[int(self.state[c, K.ST_IDX]), K.G_VLIM])
+                set_rolling(self.state[c], self.car, self.curriculum_speed * vlim)
         if self.grip_range is not None:
             self.state[cars, K.ST_GRIP_DELTA] = rng.uniform(*self.grip_range, size=k) - 1.0
         self._clear_lap_records(cars)

@@ -69,10 +69,11 @@ class RunEnvs:
         env = {k: getattr(self.spec.env, k) for k in type(self.spec.env).model_fields}
         if test:
             env.update(grip_scale_range=None, grip_drying=None, start_curriculum="none",
+                       start_curriculum_speed=0.0,
                        grip_scale=self.spec.env.grip_scale if grip_scale is None else grip_scale)
         elif self.spec.env.start_curriculum == "braking":
             env["curriculum_starts_m"] = self.curriculum_starts(track)
-        if self.spec.env.overspeed_crash_weight > 0.0:
+        if self.spec.env.overspeed_crash_weight > 0.0 or env["start_curriculum_speed"] > 0.0:
             env["limit_speeds_mps"] = self.limit_speeds(track, env["grip_scale"])
         # parse, not construct: a grip given here (``eval --grip``) is checked like any env key
         return EnvConfig.parse({
