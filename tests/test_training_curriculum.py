@@ -109,3 +109,8 @@ def test_curriculum_starts_roll_at_a_fraction_of_the_limit_speed() -> None:
     with pytest.raises(UserInputError, match="needs start_curriculum 'braking'"):
         build_run_spec(variant="WIN1", train_tracks=["technical"],
                        env_overrides={"start_curriculum_speed": 0.8})  # fmt: skip
+    # an env built by hand must be given the speeds the run would fill
+    with pytest.raises(UserInputError, match="start_curriculum_speed needs limit_speeds_mps"):
+        FormulaRacingEnv(config={"track": track, "start_curriculum": "braking",
+                                 "curriculum_starts_m": train.curriculum_starts_m,
+                                 "start_curriculum_speed": 0.8})  # fmt: skip

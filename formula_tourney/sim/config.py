@@ -268,17 +268,21 @@ class EnvConfig(EnvSettings):
     limit_speeds_mps: tuple[Real, ...] = Field(
         (),
         description="The reference limit's QSS speed (m/s) at each track sample, which the "
-        "reward's overspeed_crash_weight term reads; a training run fills it "
+        "reward's overspeed_crash_weight term and start_curriculum_speed read; a training run "
+        "fills it "
         "(training.envs). Empty: none.",
     )
 
     @model_validator(mode="after")
-    def _overspeed_has_limit_speeds(self) -> EnvConfig:
-        if self.overspeed_crash_weight > 0.0 and not self.limit_speeds_mps:
-            raise ValueError(
-                "overspeed_crash_weight needs limit_speeds_mps, the limit's speed at each track "
-                "sample (a training run fills them: training.envs.RunEnvs)"
-            )
+    def _limit_speeds_where_read(self) -> EnvConfig:
+        """The keys that read the limit's speeds: the overspeed crash term and the curriculum's
+        rolling starts."""
+        for key in ("overspeed_crash_weight", "start_curriculum_speed"):
+            if getattr(self, key) > 0.0 and not self.limit_speeds_mps:
+                raise ValueError(
+                    f"{key} needs limit_speeds_mps, the limit's speed at each track sample (a "
+                    "training run fills them: training.envs.RunEnvs)"
+                )
         return self
 
     @model_validator(mode="after")
@@ -287,15 +291,6 @@ class EnvConfig(EnvSettings):
             raise ValueError(
                 f"start_curriculum {self.start_curriculum!r} needs curriculum_starts_m (a "
                 "training run fills them: training.curriculum.braking_starts)"
-            )
-        return self
-
-    @model_validator(mode="after")
-    def _curriculum_speed_has_limit_speeds(self) -> EnvConfig:
-        if self.start_curriculum_speed > 0.0 and not self.limit_speeds_mps:
-            raise ValueError(
-                "start_curriculum_speed needs limit_speeds_mps, the limit's speed at each track "
-                "sample (a training run fills them: training.envs.RunEnvs)"
             )
         return self
 
