@@ -102,6 +102,17 @@ def test_curriculum_starts_roll_at_a_fraction_of_the_limit_speed() -> None:
     idx = np.searchsorted(track.s_m, info["s_m"], side="right") - 1
     assert (info["speed_mps"] > 15.0).all()
     assert np.allclose(info["speed_mps"], 0.8 * vlim[idx], rtol=0.03)
+    # with a share of 0.5 the other half still starts at rest (start_speed_mps 0)
+    half = FormulaRacingVectorEnv(64, config=train.model_copy(update={
+        "start_curriculum_share": 0.5}))
+    half.reset(seed=1)
+    half._needs_reset[:] = True
+    _, _, _, _, info = half.step(np.zeros((64, 3)))
+    v = info["speed_mps"]
+    rest = v == 0.0  # no throttle for 0.2 s from rest: still at rest
+    idx = np.searchsorted(track.s_m, info["s_m"], side="right") - 1
+    assert 0.2 < rest.mean() < 0.8
+    assert np.allclose(v[~rest], 0.8 * vlim[idx][~rest], rtol=0.03)
     # tests start as always: at rest, no curriculum
     test = envs.config("technical", test=True)
     assert test.start_curriculum_speed == 0.0 and test.start_curriculum == "none"
