@@ -22,7 +22,10 @@ env (the first entrant's preset's env keys, e.g. the progress reward of ``best``
 ``--env-set``), budget, seeds, tests, CPU clock and stop rule, their milestones read from the
 same table. Ratios per milestone: our median CPU-s / the anchor's (goal <= 0.25).
 
-Medians are over seeds with a miss counted as infinite (printed "miss", null in the JSON; a
+Under each entrant's CPU-s the table gives the median env steps to each milestone and the env
+steps its runs bought per CPU-s: one machine can buy twice as many steps per CPU-s in one hour
+as in another, so rows measured at different times compare in env steps (the CPU-s is what a
+user pays). Medians are over seeds with a miss counted as infinite (printed "miss", null in the JSON; a
 failed seed counts as a run that reached nothing). The goals (``GOALS``) are printed as a
 table, figure by figure, with each entrant's value and whether it meets them; an entrant with
 demonstrations is held to the demonstration goals. A table goes to stderr; the last line of
@@ -368,6 +371,11 @@ def _cell(x: float, reached: int | None = None, seeds: int | None = None) -> str
     return text if reached is None else f"{text} ({reached}/{seeds})"
 
 
+def _steps_cell(x: float | None) -> str:
+    """A median of env steps in thousands (a miss: inf, or None in the JSON)."""
+    return "miss" if x is None or not math.isfinite(x) else f"{x / 1000:.1f}"
+
+
 def _ratio_cell(r: float | None) -> str:
     if r is None:
         return "- (ours miss)"
@@ -427,7 +435,8 @@ def render(result: Mapping[str, Any]) -> str:
         f"{TEST_STARTS} starts",
         f"follower: centre {bots['centre_s']:.3f} s, mincurv {bots['mincurv_s']:.3f} s; "
         f"reference limit {bots['reference_limit_s']:.3f} s",
-        "median CPU-s to each milestone (seeds reaching it); best lap / limit; clean-start rate",
+        "median CPU-s to each milestone (seeds reaching it), and under it the median env steps "
+        "to it (a machine's speed varies; steps do not); best lap / limit; clean-start rate",
     ]
     head = ["entrant", *(MILESTONE_LABELS[n] for n in MILESTONES), "best/limit", "clean-start"]
     rows = []
@@ -440,6 +449,10 @@ def render(result: Mapping[str, Any]) -> str:
             else f"{s['median_best_lap_to_limit']:.4f}",
             f"{s['median_clean_start_rate']:.2f}",
         ])  # fmt: skip
+        speed = s.get("median_env_steps_per_cpu_s")
+        rows.append(["  env steps (k)",
+                     *(_steps_cell(s.get(f"median_{n}_env_steps")) for n in MILESTONES),
+                     "", "" if speed is None else f"{speed:.0f} steps/CPU-s"])  # fmt: skip
         for anchor, by_milestone in (e.get("ratios_vs_anchors") or {}).items():
             rows.append([f"  ours / {anchor}", *(_ratio_cell(by_milestone[n])
                                                  for n in MILESTONES), "", ""])  # fmt: skip
@@ -556,6 +569,9 @@ def _json_summary(s: Mapping[str, Any]) -> dict[str, Any]:
     out = dict(s)
     for n in MILESTONES:
         out[f"median_{n}_cpu_s"] = finite(s[f"median_{n}_cpu_s"])
+        out[f"median_{n}_env_steps"] = finite(s[f"median_{n}_env_steps"], 0)
+    speed = s.get("median_env_steps_per_cpu_s")
+    out["median_env_steps_per_cpu_s"] = None if speed is None else round(speed, 1)
     out["median_best_lap_to_limit"] = finite(s["median_best_lap_to_limit"], 4)
     out["median_clean_start_rate"] = round(s["median_clean_start_rate"], 4)
     return out

@@ -129,6 +129,23 @@ def test_the_goals_table_names_each_figure_its_value_and_whether_it_is_met() -> 
     assert lines[3].endswith(": 3 of 3 <= 0.25")
 
 
+def test_the_table_shows_env_steps_under_each_milestone_and_the_json_keeps_them() -> None:
+    """CPU-s to a milestone depends on how many steps the machine buys per CPU-s, which varies
+    (on one machine, from hour to hour); the env steps to it do not, so the table shows both."""
+    run = {**_curve_run(), "env_steps": 3100}  # (a) at episode 10: 1 000 env steps
+    s = summarise([run] * 4)
+    result = {"track": "oval", "reference": "centre", "lac": False, "budget_cpu_s": 300.0,
+              "seeds": [0, 1, 2, 3], "bots": vars(BOTS),
+              "entrants": [{"label": "WIN1:tuned", "demos": None, "summary": s, "goal_met": {},
+                            "runs": [run] * 4}], "anchors": []}  # fmt: skip
+    table = ttc.render(result).splitlines()
+    steps_row = next(line for line in table if line.startswith("  env steps (k)"))
+    assert steps_row.split()[3:8] == ["1.0", "1.5", "1.5", "100", "steps/CPU-s"]
+    js = ttc._json_summary(s)
+    assert js["median_first_clean_lap_env_steps"] == 1000.0
+    assert js["median_env_steps_per_cpu_s"] == 100.0  # 3 100 env steps in 31 CPU-s
+
+
 def test_anchors_are_parsed_and_named() -> None:
     assert ttc.parse_anchors("sb3:SAC, sb3_contrib:CrossQ") == [("sb3", "SAC"),
                                                                  ("sb3_contrib", "CrossQ")]

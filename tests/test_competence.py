@@ -90,6 +90,24 @@ def test_medians_over_seeds_count_a_miss_as_infinite() -> None:
     assert s["median_best_lap_to_limit"] == pytest.approx(1.0225)
     assert s["median_clean_start_rate"] == 0.75  # the seed without a clean lap counts 0
     assert C.median_inf([NAN]) == math.inf and C.median_inf([]) == math.inf
+    assert s["median_first_clean_lap_env_steps"] == math.inf  # these runs record no steps
+    assert s["median_env_steps_per_cpu_s"] is None
+
+
+def test_medians_of_env_steps_to_each_milestone_and_of_steps_per_cpu_s() -> None:
+    """Two machines (or hours of one) buy different steps per CPU-s: the steps to a milestone
+    compare runs across them, and the steps per CPU-s say how fast each machine was."""
+    run = C.run_competence(TABLE, "oval", BOTS)  # first clean lap at 15 000 env steps
+    slow = {**run, "env_steps": 60_000, "cpu_s_total": 60.0}
+    fast = {**run, "env_steps": 60_000, "cpu_s_total": 30.0, "milestones": {
+        **run["milestones"], "first_clean_lap": {**run["milestones"]["first_clean_lap"],
+                                                 "env_steps": 25_000}}}  # fmt: skip
+    missed = {**run, "env_steps": 45_000, "cpu_s_total": 45.0,
+              "milestones": dict.fromkeys(C.MILESTONES)}  # fmt: skip
+    s = C.summarise([slow, fast, missed])
+    assert s["median_first_clean_lap_env_steps"] == 25_000.0  # 15k, 25k, inf
+    assert s["median_beat_mincurv_bot_env_steps"] == 30_000.0  # 30k, 30k and a miss
+    assert s["median_env_steps_per_cpu_s"] == 1000.0  # 1 000, 2 000 and 1 000 steps per CPU-s
 
 
 def test_the_stop_rule_ends_a_run_at_the_bot_or_the_budget() -> None:

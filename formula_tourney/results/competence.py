@@ -171,15 +171,26 @@ def median_inf(values: Iterable[float | None]) -> float:
     return float(statistics.median(xs)) if xs else math.inf
 
 
+def _milestone_env_steps(run: Mapping[str, Any], name: str) -> float | None:
+    """The env steps a run had trained when it reached milestone ``name`` (None: missed)."""
+    hit = (run.get("milestones") or {}).get(name)
+    return None if hit is None else float(hit["env_steps"])
+
+
 def summarise(runs: list[Mapping[str, Any]]) -> dict[str, Any]:
-    """Medians over one entrant's seeds: each milestone's CPU-s (miss = inf) and how many seeds
-    reached it, best lap / limit (miss = inf) and clean-start rate (a seed without a clean lap
-    counts 0)."""
+    """Medians over one entrant's seeds: each milestone's CPU-s and env steps (miss = inf) and
+    how many seeds reached it, best lap / limit (miss = inf) and clean-start rate (a seed
+    without a clean lap counts 0). The env steps compare runs on machines (or hours of one
+    machine) that buy a different number of steps per CPU-s; CPU-s is what a user pays."""
     out: dict[str, Any] = {"seeds": len(runs)}
     for name in MILESTONES:
         out[f"median_{name}_cpu_s"] = median_inf(r["cpu_s"].get(name) for r in runs)
+        out[f"median_{name}_env_steps"] = median_inf(_milestone_env_steps(r, name) for r in runs)
         out[f"reached_{name}"] = sum(r["cpu_s"].get(name) is not None for r in runs)
     out["median_best_lap_to_limit"] = median_inf(r.get("best_lap_to_limit") for r in runs)
+    speeds = [r["env_steps"] / r["cpu_s_total"] for r in runs
+              if r.get("env_steps") and r.get("cpu_s_total")]  # fmt: skip
+    out["median_env_steps_per_cpu_s"] = float(statistics.median(speeds)) if speeds else None
     rates = [r.get("clean_start_rate") or 0.0 for r in runs]
     out["median_clean_start_rate"] = float(statistics.median(rates)) if rates else 0.0
     return out
