@@ -25,9 +25,9 @@ same table. Ratios per milestone: our median CPU-s / the anchor's (goal <= 0.25)
 Under each entrant's CPU-s the table gives the median env steps to each milestone and the env
 steps its runs bought per CPU-s: one machine can buy twice as many steps per CPU-s in one hour
 as in another, so rows measured at different times compare in env steps (the CPU-s is what a
-user pays). Medians are over seeds with a miss counted as infinite (printed "miss", null in the JSON; a
-failed seed counts as a run that reached nothing). The goals (``GOALS``) are printed as a
-table, figure by figure, with each entrant's value and whether it meets them; an entrant with
+user pays). Medians are over seeds with a miss counted as infinite (printed "miss", null in the
+JSON; a failed seed counts as a run that reached nothing). The goals (``GOALS``) are printed as
+a table, figure by figure, with each entrant's value and whether it meets them; an entrant with
 demonstrations is held to the demonstration goals. A table goes to stderr; the last line of
 stdout is one JSON object. Seeds must be consecutive (a tournament's seeds are ``seed_base`` +
 0, 1, ...); ``--out`` reused with the same settings resumes (finished runs are kept).

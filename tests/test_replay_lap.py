@@ -127,6 +127,12 @@ def test_replay_trace_holds_every_step_of_the_drive(job: Path, tmp_path: Path, c
     assert _cli(*drive, "--trace", str(tmp_path / "steps.parquet")) == 0
     again = pd.read_parquet(tmp_path / "steps.parquet")
     assert np.allclose(again.to_numpy(), steps.to_numpy(), rtol=1e-5)
+    capsys.readouterr()
+    # --braking reads the drive against the limit's braking zones: a ring of one radius has none
+    assert _cli(*drive, "--braking", "--json") == 0
+    assert json.loads(capsys.readouterr().out)["braking"] == []
+    assert _cli(*drive, "--braking") == 0
+    assert "approached no braking zone" in capsys.readouterr().out
     # another suffix is refused before the drive, and nothing is written
     assert _cli(*drive, "--trace", str(tmp_path / "steps.txt")) == 2
     assert "--trace" in capsys.readouterr().err and not (tmp_path / "steps.txt").exists()

@@ -235,6 +235,10 @@ def register(app: typer.Typer) -> None:
         trace: Path | None = typer.Option(
             None, "--trace", help="File to write every step of the drive to (.csv or .parquet): "
             "time, distance, position, speed, steer, pedals, laps."),
+        braking: bool = typer.Option(
+            False, "--braking", help="Where the drive braked for each braking zone of the "
+            "QSS lap on the run's reference line: its first brake >= 0.3, how far after the "
+            "line's braking point, its speeds there and at the zone's apex, or where it ended."),
         max_steps: int | None = typer.Option(
             None, "--max-steps", min=1, help="Control steps at most (default: the run's "
             "test_max_steps, as its tests)."),
@@ -245,6 +249,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Drive one test of a trained actor again (no exploration): the same start, grip and
         seed give the same laps as its row in tests.parquet; --best finds the table's."""
+        from formula_tourney.training.braking import braking_lines
         from formula_tourney.training.replay import replay, replay_best
 
         if gif is not None:
@@ -252,7 +257,7 @@ def register(app: typer.Typer) -> None:
         if trace is not None:
             check_output_path(trace, "--trace")
         options: dict[str, Any] = {"max_steps": max_steps, "frame_every": frame_every,
-                                   "device": device, "trace": trace}
+                                   "device": device, "trace": trace, "braking": braking}
         if best:
             given = [name for name, value in (("--start-s-m", start_s_m), ("--grip", grip),
                                               ("--seed", seed)) if value is not None]
@@ -282,6 +287,9 @@ def register(app: typer.Typer) -> None:
                 lines.append(f"{summary['gif']}: {summary['frames']} frames")
             if summary["trace"]:
                 lines.append(f"{summary['trace']}: {summary['steps']} steps")
+            if summary["braking"] is not None:
+                lines += braking_lines(summary["braking"],
+                                       f"the {summary['reference']} line's QSS lap")
             for line in lines:
                 console.print(line, markup=False, highlight=False)
 

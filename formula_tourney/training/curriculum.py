@@ -25,20 +25,28 @@ MIN_DROP_MPS = 3.0
 (a kink on a straight) need no braking to learn."""
 
 
+def braking_zones(speed_mps: np.ndarray) -> list[tuple[int, int]]:
+    """The braking zones of a closed lap's speed profile (one speed per sample): per zone the
+    sample where the speed starts to fall and the one where it stops falling (modulo the
+    sample count), for every fall of at least :data:`MIN_DROP_MPS`."""
+    v = np.asarray(speed_mps, dtype=float)
+    n = len(v)
+    falling = np.roll(v, -1) < v  # the speed falls from sample i to i + 1
+    zones = []
+    for i in np.flatnonzero(falling & ~np.roll(falling, 1)):
+        j = int(i)
+        while falling[j % n] and j - i < n:
+            j += 1
+        if v[i] - v[j % n] >= MIN_DROP_MPS:
+            zones.append((int(i), j % n))
+    return zones
+
+
 def braking_points_m(track: Track, offsets_m: np.ndarray | float, car: CarParams) -> np.ndarray:
     """Track positions (m along the centreline) where the QSS profile of the line with these
     offsets starts to decelerate, one per braking zone of at least :data:`MIN_DROP_MPS`."""
     v = speed_profile(track, offsets_m, car).speed_mps
-    falling = np.roll(v, -1) < v  # the speed falls from sample i to i + 1
-    starts = np.flatnonzero(falling & ~np.roll(falling, 1))
-    points = []
-    for i in starts:
-        j = i
-        while falling[j % len(v)] and j - i < len(v):
-            j += 1
-        if v[i] - v[j % len(v)] >= MIN_DROP_MPS:
-            points.append(float(track.s_m[i]))
-    return np.asarray(points)
+    return np.asarray([float(track.s_m[i]) for i, _ in braking_zones(v)])
 
 
 def braking_starts(

@@ -86,9 +86,14 @@ class RunEnvs:
     def curriculum_starts(self, track: str) -> tuple[float, ...]:
         """The start curriculum's positions on ``track``: before the braking zones of the QSS
         profile of the run's reference line for its car (``training.curriculum``)."""
+        return braking_starts(self.tracks[track], self.line_offsets(track),
+                              self.spec.env.car_params())  # fmt: skip
+
+    def line_offsets(self, track: str) -> np.ndarray | float:
+        """The run's reference line on ``track`` as lateral offsets from the centreline (m; 0:
+        the centre line), as the QSS profile (``lines.speed_profile``) takes it."""
         line = self.lines[track]
-        offsets = 0.0 if isinstance(line, str) else line
-        return braking_starts(self.tracks[track], offsets, self.spec.env.car_params())
+        return 0.0 if isinstance(line, str) else line
 
     def limit_speeds(self, track: str, grip_scale: float) -> tuple[float, ...]:
         """The reference limit's speed at each sample of ``track`` at ``grip_scale``, which the

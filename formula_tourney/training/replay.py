@@ -12,6 +12,9 @@ another lap than the table's (a 78.82 s lap from 1 635 m became no timed lap at 
 ``--trace FILE`` (``.csv`` or ``.parquet``) writes every step of the drive (time, distance,
 position on the track, speed, steer and pedals, laps) for reading where a drive is lost: a
 crash shows as the steps before it (how fast the car met the corner, where it braked).
+``--braking`` reads that for every braking zone of the run's reference line
+(``training.braking``): where the drive first braked and how fast, against where and how fast
+the QSS lap on that line brakes.
 
 The GIF shows the best clean lap of the drive (the whole drive when it has none) in the race
 GIF's look (``sim.multicar.frames``): the track drawn once, the car stamped large enough to see
@@ -43,6 +46,7 @@ from formula_tourney.sim.multicar.frames import (
     write_video,
 )
 from formula_tourney.sim.track import Track
+from formula_tourney.training.braking import drive_braking, line_braking_zones
 from formula_tourney.training.checkpoint import load_run_checkpoint
 from formula_tourney.training.envs import RunEnvs
 from formula_tourney.training.evaluate import (
@@ -141,14 +145,16 @@ def replay(checkpoint: str | Path, track: str | None = None, gif: str | Path | N
            start_s_m: float | None = None, grip_scale: float | None = None,
            seed: int | None = None, max_steps: int | None = None, frame_every: int = 2,
            device: str = "cpu", episode: int | None = None,
-           trace: str | Path | None = None) -> dict[str, Any]:
+           trace: str | Path | None = None, braking: bool = False) -> dict[str, Any]:
     """Drive one test of the checkpoint's actor as the run's tests drive it; returns its laps.
 
     Defaults are the run's: its key track, its first test start (50 m before the line), its
     grip, the seed its tests use at that start and its ``test_max_steps``. ``gif`` (optional)
     gets the best clean lap of the drive, or the whole drive when it has none. ``episode``:
     the test round the checkpoint must hold (a test row's), refused before driving otherwise.
-    ``trace`` (optional, ``.csv`` or ``.parquet``) gets every step of the drive.
+    ``trace`` (optional, ``.csv`` or ``.parquet``) gets every step of the drive; ``braking``
+    adds where it braked for each braking zone of the run's reference line
+    (``training.braking``).
     """
     checkpoint = Path(checkpoint)
     if gif is not None and Path(gif).suffix.lower() != ".gif":
@@ -174,7 +180,7 @@ def replay(checkpoint: str | Path, track: str | None = None, gif: str | Path | N
     try:
         check_observation_size(env, agent, checkpoint)
         drive = run_test_episode(agent, env, track, start, seed=seed,
-                                 keep_steps=gif is not None or trace is not None)
+                                 keep_steps=gif is not None or trace is not None or braking)
     finally:
         env.close()
     summary: dict[str, Any] = {
@@ -183,8 +189,13 @@ def replay(checkpoint: str | Path, track: str | None = None, gif: str | Path | N
         "seed": seed, "lap_times_s": drive.lap_times_s, "lap_damage": drive.lap_damage,
         "best_lap_s": None if math.isnan(drive.best_lap_s) else drive.best_lap_s,
         "termination": drive.termination, "steps": drive.steps, "damage": drive.damage,
-        "reward": drive.reward, "gif": None, "frames": 0, "trace": None,
+        "reward": drive.reward, "gif": None, "frames": 0, "trace": None, "braking": None,
     }
+    if braking:
+        zones = line_braking_zones(envs.tracks[track], envs.line_offsets(track),
+                                   spec.env.car_params(), drive.grip_scale)  # fmt: skip
+        summary["braking"] = [z.as_dict() for z in drive_braking(
+            drive.steps_trace, start, length_m, zones, drive.termination)]
     if trace is not None:
         summary["trace"] = str(write_trace(Path(trace), drive.steps_trace))
     if gif is not None:
