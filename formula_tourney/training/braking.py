@@ -155,7 +155,7 @@ def _num(x: float | None, unit: str, fmt: str = ".0f") -> str:
 def braking_lines(rows: list[dict[str, Any]], line: str) -> list[str]:
     """The ``replay --braking`` table, one line per zone the drive approached (rows of
     :meth:`ZoneDrive.as_dict`); ``line`` names the profile (e.g. "the centre line's QSS
-    profile")."""
+    lap")."""
     if not rows:
         return [f"braking: the drive approached no braking zone of {line}"]
     out = [f"braking zones of {line}, the drive's first pass (brake >= {BRAKE_ON:g}; late: "
