@@ -37,6 +37,7 @@ stdout is one JSON object. Seeds must be consecutive (a tournament's seeds are `
         [--jobs 2] [--budget-cpu-s 600] [--to-budget] [--set KEY=VALUE]
         [--anchors sb3:SAC,sb3_contrib:CrossQ | --no-sb3] [--out DIR] [--plot FILE]
     .venv/bin/python benchmarks/time_to_competence.py --replot RUN.json[=LABEL] ... --plot FILE
+    .venv/bin/python benchmarks/time_to_competence.py --replot RUN.json ... --at-env-steps 100000
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ import json  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
-from collections.abc import Iterable, Mapping  # noqa: E402
+from collections.abc import Callable, Iterable, Mapping, Sequence  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any, NamedTuple  # noqa: E402
 
@@ -64,6 +65,8 @@ from formula_tourney.results.competence import (  # noqa: E402
     MILESTONE_LABELS,
     MILESTONES,
     Bots,
+    best_clean_lap_until,
+    median_inf,
     summarise,
     thresholds,
 )
@@ -141,6 +144,26 @@ def parse_overrides(pairs: Iterable[str], what: str = "--set") -> dict[str, Any]
         return parse_key_values(list(pairs), what)
     except UserInputError as err:
         raise SystemExit(str(err)) from None
+
+
+def parse_env_steps(text: str) -> list[int]:
+    """``100000,135000`` -> [100000, 135000]: positive whole numbers of env steps."""
+    try:
+        bounds = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise SystemExit(f"--at-env-steps wants whole numbers, got {text!r}") from None
+    if not bounds or min(bounds) < 1:
+        raise SystemExit(f"--at-env-steps wants numbers >= 1, got {text!r}")
+    return bounds
+
+
+def _job_tests(run: Mapping[str, Any]) -> Any:
+    """The tests of a run's job folder (its JSON record's ``job``)."""
+    from formula_tourney.results.folder import JobFolder
+
+    if not run.get("job"):
+        raise SystemExit(f"--at-env-steps: seed {run.get('seed')}'s record names no job folder")
+    return JobFolder(Path(run["job"])).tests()
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -520,6 +543,43 @@ def load_results(specs: Iterable[str]) -> dict[str, Any]:
     return merged
 
 
+TestsOf = Callable[[Mapping[str, Any]], Any]
+"""A run's record -> its tests table (``_job_tests``: its job folder's)."""
+
+
+def laps_at_env_steps(result: Mapping[str, Any], bounds: Sequence[int],
+                      tests_of: TestsOf) -> list[dict[str, Any]]:
+    """Per entrant of ``result`` (``load_results``) and per bound: each run's best clean lap
+    after at most that many env steps (``results.competence.best_clean_lap_until`` on the tests
+    ``tests_of(run)`` reads, None: no clean lap by then) and their median (a miss counted as
+    infinite, None in the JSON). Runs measured when the machine bought fewer steps per CPU-s
+    compare here step for step."""
+    out = []
+    for e in _all(result):
+        row: dict[str, Any] = {"label": e["label"], "seeds": [r["seed"] for r in e["runs"]],
+                               "laps_s": {}, "median_s": {}}  # fmt: skip
+        for bound in bounds:
+            laps = [math.inf if "error" in r else
+                    best_clean_lap_until(tests_of(r), result["track"], bound)
+                    for r in e["runs"]]  # fmt: skip
+            row["laps_s"][str(bound)] = [finite(x, 3) for x in laps]
+            row["median_s"][str(bound)] = finite(median_inf(laps), 3)
+        out.append(row)
+    return out
+
+
+def render_laps_at_env_steps(rows: Sequence[Mapping[str, Any]], track: str) -> str:
+    """The ``--at-env-steps`` table (stderr)."""
+    lines = [f"best clean lap on {track} after at most N env steps (each run, then the median)"]
+    for row in rows:
+        for bound, laps in row["laps_s"].items():
+            shown = ", ".join("miss" if x is None else f"{x:.3f}" for x in laps)
+            median = row["median_s"][bound]
+            lines.append(f"  {row['label']} at {int(bound):,} env steps: {shown}; median "
+                         f"{'miss' if median is None else f'{median:.3f}'} s")
+    return "\n".join(lines)
+
+
 def plot_curves(result: Mapping[str, Any], out_base: Path) -> list[Path]:
     """Each run's clean test laps (dots) and best lap so far (line) against CPU-s, one colour
     per entrant, with the two followers and the reference limit as horizontal lines."""
@@ -614,15 +674,29 @@ def main() -> None:
                     help="instead of running, draw earlier runs' curves (files holding this "
                     "benchmark's JSON line, e.g. its saved stdout) on one figure into --plot; "
                     "LABEL names the file's entrants (repeatable)")
+    ap.add_argument("--at-env-steps", default=None, metavar="N[,N...]",
+                    help="with --replot: each earlier run's best clean lap after at most N "
+                    "env steps (read from its job folder's tests) and the median per entrant, "
+                    "to compare runs step for step")
     args = ap.parse_args()  # fmt: skip
+    if args.at_env_steps is not None and not args.replot:
+        raise SystemExit("--at-env-steps reads earlier runs: give them with --replot")
     if args.replot:
-        if not args.plot:
-            raise SystemExit("--replot draws into --plot FILE: give one")
-        drawn = plot_curves(load_results(args.replot), Path(args.plot))
-        for path in drawn:
-            print(f"wrote {path}", file=sys.stderr)
-        print(json.dumps({"benchmark": "time_to_competence_replot", "replot": args.replot,
-                          "wrote": [str(p) for p in drawn]}))  # fmt: skip
+        if not args.plot and args.at_env_steps is None:
+            raise SystemExit("--replot draws into --plot FILE or reads --at-env-steps: give one")
+        result = load_results(args.replot)
+        summary: dict[str, Any] = {"benchmark": "time_to_competence_replot",
+                                   "replot": args.replot, "wrote": []}  # fmt: skip
+        if args.at_env_steps is not None:
+            rows = laps_at_env_steps(result, parse_env_steps(args.at_env_steps), _job_tests)
+            print(render_laps_at_env_steps(rows, result["track"]), file=sys.stderr)
+            summary["at_env_steps"] = rows
+        if args.plot:
+            drawn = plot_curves(result, Path(args.plot))
+            for path in drawn:
+                print(f"wrote {path}", file=sys.stderr)
+            summary["wrote"] = [str(p) for p in drawn]
+        print(json.dumps(summary))
         return
     seeds = parse_seeds(args.seeds)
     entrants = parse_entrants(args.entrants)

@@ -146,6 +146,33 @@ def test_the_table_shows_env_steps_under_each_milestone_and_the_json_keeps_them(
     assert js["median_env_steps_per_cpu_s"] == 100.0  # 3 100 env steps in 31 CPU-s
 
 
+def test_laps_at_env_steps_compare_earlier_runs_step_for_step() -> None:
+    """``--replot ... --at-env-steps N``: each run's best clean lap after at most N env steps,
+    read from its tests (here hand-made: clean 35.8 s after 1 000 env steps, 34.5 s after
+    1 500), and the median with a miss counted as infinite."""
+    import pandas as pd
+
+    rows = [{"episode": e, "env_steps": e * 100, "track": "oval", "best_lap_s": lap,
+             "damage": 0.0, "finished": True, "cpu_s": cpu}
+            for e, lap, cpu in ((5, NAN, 10.0), (10, 35.8, 20.0), (15, 34.5, 30.0))]
+    tests = pd.DataFrame(rows)
+    runs = [{**_curve_run(), "seed": 0}, {**_curve_run(), "seed": 1},
+            ttc._failed("WIN1:tuned", 2, "EntrantError: NaN action")]  # fmt: skip
+    result = {"track": "oval", "entrants": [{"label": "WIN1:tuned", "runs": runs}],
+              "anchors": []}  # fmt: skip
+    (row,) = ttc.laps_at_env_steps(result, [999, 1000, 1500], lambda run: tests)
+    assert row["seeds"] == [0, 1, 2]
+    assert row["laps_s"] == {"999": [None, None, None], "1000": [35.8, 35.8, None],
+                             "1500": [34.5, 34.5, None]}  # fmt: skip
+    assert row["median_s"] == {"999": None, "1000": 35.8, "1500": 34.5}
+    text = ttc.render_laps_at_env_steps([row], "oval")
+    assert "WIN1:tuned at 1,500 env steps: 34.500, 34.500, miss; median 34.500 s" in text
+    assert ttc.parse_env_steps("100000, 135000") == [100000, 135000]
+    for bad in ("", "1e5", "0"):
+        with pytest.raises(SystemExit, match="--at-env-steps"):
+            ttc.parse_env_steps(bad)
+
+
 def test_anchors_are_parsed_and_named() -> None:
     assert ttc.parse_anchors("sb3:SAC, sb3_contrib:CrossQ") == [("sb3", "SAC"),
                                                                  ("sb3_contrib", "CrossQ")]

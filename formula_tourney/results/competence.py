@@ -75,6 +75,16 @@ def rounds(tests: pd.DataFrame, track: str) -> pd.DataFrame:
     return models[["episode", "env_steps", "cpu_s", "clean_lap_s"]]
 
 
+def best_clean_lap_until(tests: pd.DataFrame, track: str, env_steps: float) -> float:
+    """The best clean lap (s) of the test rounds on ``track`` held after at most ``env_steps``
+    env steps (inf: none): two runs compared step for step, whatever each machine's speed."""
+    held = rounds(tests, track)
+    laps = pd.to_numeric(held.loc[held["env_steps"] <= env_steps, "clean_lap_s"],
+                         errors="coerce").to_numpy(dtype=float)  # fmt: skip
+    laps = laps[np.isfinite(laps)]
+    return float(laps.min()) if laps.size else math.inf
+
+
 def milestones(tests: pd.DataFrame, track: str,
                limits: Mapping[str, float]) -> dict[str, dict[str, Any] | None]:  # fmt: skip
     """The first round reaching each milestone (episode, env_steps, lap_s, cpu_s), or None."""
