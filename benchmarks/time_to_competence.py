@@ -163,7 +163,10 @@ def _job_tests(run: Mapping[str, Any]) -> Any:
 
     if not run.get("job"):
         raise SystemExit(f"--at-env-steps: seed {run.get('seed')}'s record names no job folder")
-    return JobFolder(Path(run["job"])).tests()
+    folder = JobFolder(Path(run["job"]))
+    if not folder.config_path.is_file():  # moved or deleted: its laps are not a miss
+        raise SystemExit(f"--at-env-steps: {folder.path}: not a job folder (no config.json)")
+    return folder.tests()
 
 
 def parse_seeds(text: str) -> list[int]:

@@ -146,7 +146,7 @@ def test_the_table_shows_env_steps_under_each_milestone_and_the_json_keeps_them(
     assert js["median_env_steps_per_cpu_s"] == 100.0  # 3 100 env steps in 31 CPU-s
 
 
-def test_laps_at_env_steps_compare_earlier_runs_step_for_step() -> None:
+def test_laps_at_env_steps_compare_earlier_runs_step_for_step(tmp_path: Path) -> None:
     """``--replot ... --at-env-steps N``: each run's best clean lap after at most N env steps,
     read from its tests (here hand-made: clean 35.8 s after 1 000 env steps, 34.5 s after
     1 500), and the median with a miss counted as infinite."""
@@ -167,6 +167,8 @@ def test_laps_at_env_steps_compare_earlier_runs_step_for_step() -> None:
     assert row["median_s"] == {"999": None, "1000": 35.8, "1500": 34.5}
     text = ttc.render_laps_at_env_steps([row], "oval")
     assert "WIN1:tuned at 1,500 env steps: 34.500, 34.500, miss; median 34.500 s" in text
+    with pytest.raises(SystemExit, match=r"gone: not a job folder \(no config\.json\)"):
+        ttc._job_tests({"seed": 0, "job": str(tmp_path / "gone")})
     assert ttc.parse_env_steps("100000, 135000") == [100000, 135000]
     for bad in ("", "1e5", "0"):
         with pytest.raises(SystemExit, match="--at-env-steps"):
