@@ -65,7 +65,7 @@ from formula_tourney.results.competence import (  # noqa: E402
     MILESTONE_LABELS,
     MILESTONES,
     Bots,
-    best_clean_lap_until,
+    best_clean_lap,
     median_inf,
     summarise,
     thresholds,
@@ -553,7 +553,7 @@ TestsOf = Callable[[Mapping[str, Any]], Any]
 def laps_at_env_steps(result: Mapping[str, Any], bounds: Sequence[int],
                       tests_of: TestsOf) -> list[dict[str, Any]]:
     """Per entrant of ``result`` (``load_results``) and per bound: each run's best clean lap
-    after at most that many env steps (``results.competence.best_clean_lap_until`` on the tests
+    after at most that many env steps (``results.competence.best_clean_lap`` on the tests
     ``tests_of(run)`` reads, None: no clean lap by then) and their median (a miss counted as
     infinite, None in the JSON). Runs measured when the machine bought fewer steps per CPU-s
     compare here step for step."""
@@ -562,8 +562,8 @@ def laps_at_env_steps(result: Mapping[str, Any], bounds: Sequence[int],
         row: dict[str, Any] = {"label": e["label"], "seeds": [r["seed"] for r in e["runs"]],
                                "laps_s": {}, "median_s": {}}  # fmt: skip
         for bound in bounds:
-            laps = [math.inf if "error" in r else
-                    best_clean_lap_until(tests_of(r), result["track"], bound)
+            laps = [math.inf if "error" in r else  # nan (no clean lap) is a miss as well
+                    best_clean_lap(tests_of(r), result["track"], bound)
                     for r in e["runs"]]  # fmt: skip
             row["laps_s"][str(bound)] = [finite(x, 3) for x in laps]
             row["median_s"][str(bound)] = finite(median_inf(laps), 3)

@@ -75,16 +75,6 @@ def rounds(tests: pd.DataFrame, track: str) -> pd.DataFrame:
     return models[["episode", "env_steps", "cpu_s", "clean_lap_s"]]
 
 
-def best_clean_lap_until(tests: pd.DataFrame, track: str, env_steps: float) -> float:
-    """The best clean lap (s) of the test rounds on ``track`` held after at most ``env_steps``
-    env steps (inf: none): two runs compared step for step, whatever each machine's speed."""
-    held = rounds(tests, track)
-    laps = pd.to_numeric(held.loc[held["env_steps"] <= env_steps, "clean_lap_s"],
-                         errors="coerce").to_numpy(dtype=float)  # fmt: skip
-    laps = laps[np.isfinite(laps)]
-    return float(laps.min()) if laps.size else math.inf
-
-
 def milestones(tests: pd.DataFrame, track: str,
                limits: Mapping[str, float]) -> dict[str, dict[str, Any] | None]:  # fmt: skip
     """The first round reaching each milestone (episode, env_steps, lap_s, cpu_s), or None."""
@@ -101,9 +91,15 @@ def milestones(tests: pd.DataFrame, track: str,
     return out
 
 
-def best_clean_lap(tests: pd.DataFrame, track: str) -> float:
-    """The run's best lap: its fastest model clean lap on ``track`` (nan if none)."""
-    laps = pd.to_numeric(rounds(tests, track)["clean_lap_s"], errors="coerce").dropna()
+def best_clean_lap(tests: pd.DataFrame, track: str,
+                   until_env_steps: float = math.inf) -> float:  # fmt: skip
+    """The run's best lap: its fastest model clean lap on ``track`` (nan if none); with
+    ``until_env_steps``, of the rounds held after at most that many env steps, so that runs
+    are compared step for step, whatever each machine's speed."""
+    held = rounds(tests, track)
+    if math.isfinite(until_env_steps):
+        held = held[held["env_steps"] <= until_env_steps]
+    laps = pd.to_numeric(held["clean_lap_s"], errors="coerce").dropna()
     return float(laps.min()) if len(laps) else math.nan
 
 

@@ -148,8 +148,8 @@ def drive_braking(steps: pd.DataFrame, start_s_m: float, length_m: float,
     return out
 
 
-def _num(x: float | None, unit: str, fmt: str = ".0f") -> str:
-    return "-" if x is None else f"{x:{fmt}} {unit}"
+def _kmh(x: float | None) -> str:
+    return "-" if x is None else f"{x:.0f} km/h"
 
 
 def braking_lines(rows: list[dict[str, Any]], line: str) -> list[str]:
@@ -169,11 +169,11 @@ def braking_lines(rows: list[dict[str, Any]], line: str) -> list[str]:
         else:
             drive = (f"brakes at {r['brake_s_m']:.0f} m ({r['late_m']:+.0f} m late) at "
                      f"{r['brake_kmh']:.0f} km/h")
-        drive += f"; {_num(r['at_line_brake_kmh'], 'km/h')} at the line's point"
+        drive += f"; {_kmh(r['at_line_brake_kmh'])} at the line's point"
         if r["ended_by"] is not None:
             drive += (f"; ended ({r['ended_by']}) at {r['ended_s_m']:.0f} m, "
                       f"{r['ended_kmh']:.0f} km/h")
         else:
-            drive += f"; {_num(r['apex_kmh'], 'km/h')} at the apex"
+            drive += f"; {_kmh(r['apex_kmh'])} at the apex"
         out.append(f"  {zone} | drive {drive}")
     return out
