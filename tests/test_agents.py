@@ -327,6 +327,9 @@ def test_q_pair_equals_two_critic_evaluations(name: str) -> None:
      ("PER40k", {"critic_bins": 7, "critic_value_range": (-1.0, 2.0)}),
      # a wider target (critic_sigma_bins) reaches the same loss through both updates
      ("WIN1", {"critic_bins": 11, "critic_value_range": (-0.5, 0.5), "critic_sigma_bins": 2.5}),
+     # the squared error of Q beside the cross-entropy (critic_mse_weight), with PER's grad_a
+     ("WIN1", {"critic_bins": 11, "critic_value_range": (-0.5, 0.5), "critic_mse_weight": 2.0}),
+     ("PER40k", {"critic_bins": 7, "critic_value_range": (-1.0, 2.0), "critic_mse_weight": 0.5}),
      # both at once, the term on the steer alone (the shape of `best`'s DDPG family): a fresh
      # actor's steer z lies beyond 0.001 in ~4 of 5 rows, its pedals' (~3) within 50
      ("WIN1", {"critic_bins": 11, "critic_value_range": (-0.5, 0.5), "preact_penalty": 0.5,

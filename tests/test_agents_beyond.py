@@ -345,7 +345,7 @@ NEW_FIELDS = {
     "critic_layer_norm": False, "crash_penalty_decay_steps": 0, "preact_penalty": 0.0,
     "preact_bound": [6.0, 6.0], "obs_norm": False, "critic_bins": 0,
     "critic_value_range": [-100.0, 100.0], "critic_sigma_bins": 0.75,
-    "critic_sigma_start_bins": 0.0, "critic_sigma_warmup_updates": 0,
+    "critic_sigma_start_bins": 0.0, "critic_sigma_warmup_updates": 0, "critic_mse_weight": 0.0,
 }  # fmt: skip
 # AgentConfig().model_dump(mode="json") and each paper variant's changes from it, before
 # TD3 and SAC existed

@@ -149,7 +149,8 @@ def test_a_familys_settings_are_its_own(algorithm: str, key: str) -> None:
               and variant.algorithm == algorithm):  # the target's warm-up: both or neither
             with pytest.raises(UserInputError, match="both or neither"):
                 get_variant(name, {key: value})
-        elif key in ("critic_value_range", "critic_sigma_bins") and variant.algorithm == algorithm:
+        elif (key in ("critic_value_range", "critic_sigma_bins", "critic_mse_weight")
+              and variant.algorithm == algorithm):
             # the bins' span and their target's spread
             with pytest.raises(UserInputError, match="needs critic_bins"):
                 get_variant(name, {key: value})
@@ -166,7 +167,7 @@ def test_a_familys_settings_are_its_own(algorithm: str, key: str) -> None:
 def test_each_setting_is_declared_once() -> None:
     """The shared settings and every family's own are disjoint, and AgentConfig is their union."""
     own = [k for family in ALGORITHMS.values() for k in family.settings.model_fields]
-    assert len(own) == len(set(own)) == 19
+    assert len(own) == len(set(own)) == 20
     assert not set(own) & set(SharedSettings.model_fields)
     assert set(AgentConfig.model_fields) == set(SharedSettings.model_fields) | set(own)
     assert all(AgentConfig.model_fields[k].description for k in AgentConfig.model_fields)

@@ -292,7 +292,7 @@ class Agent:
             assert self.actor_target is not None
             self._mlp_update = MLPUpdate(
                 self.actor, self.critic, self.actor_target, self.critic_target,
-                Saturation(cfg.preact_penalty, *cfg.preact_bound),
+                Saturation(cfg.preact_penalty, *cfg.preact_bound), cfg.critic_mse_weight,
             )
         self._greedy = GreedyAct(self.actor) if isinstance(self.actor, Actor) else None
         # what tests and races drive: the average where one is kept, else the online actor

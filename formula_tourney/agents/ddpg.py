@@ -41,7 +41,7 @@ ValueBound = Annotated[float, Field(ge=-1e6, le=1e6)]
 
 
 _SHAPES_OF_THE_BINS = ("critic_value_range", "critic_sigma_bins", "critic_sigma_start_bins",
-                       "critic_sigma_warmup_updates")  # fmt: skip
+                       "critic_sigma_warmup_updates", "critic_mse_weight")  # fmt: skip
 """Settings of the classification critic alone: away from their defaults they need bins."""
 
 
@@ -140,6 +140,19 @@ class DDPGSettings(FamilySettings):
         json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
     )
 
+    critic_mse_weight: float = Field(
+        0.0,
+        ge=0.0,
+        le=100.0,
+        description="Beyond the paper: the classification critic's (critic_bins) loss also "
+        "pays this times the paper's squared error of its Q (the softmax's mean) to y, eq. "
+        "(2). The cross-entropy to a target 0.75 bins wide moves the mean by a difference of "
+        "a fraction of a bin with a pull ~1/sigma^2 of its size, so laps that differ by 1 % "
+        "of Q are told apart slowly; the squared error pulls the mean itself. 0: the "
+        "cross-entropy alone.",
+        json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
+    )
+
     @model_validator(mode="after")
     def _bins(self) -> DDPGSettings:
         if self.critic_bins == 1:
@@ -228,14 +241,18 @@ class DDPGAgent(Agent):
 
     def critic_loss(self, td: torch.Tensor, y: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
         """Eq. (2); with ``critic_bins``, the weighted cross-entropy of the logits at ``(s, a)``
-        (kept by :meth:`_critic_values`) to the HL-Gauss histogram of ``y``."""
+        (kept by :meth:`_critic_values`) to the HL-Gauss histogram of ``y``, plus
+        ``critic_mse_weight`` times eq. (2) on the softmax's mean."""
         if not self.cfg.critic_bins:
             return super().critic_loss(td, y, weights)
         critic = self.critic
         assert isinstance(critic, MLPCritic)
         target = hl_gauss_targets(y, critic.edges, critic.sigma_bins)
         cross_entropy = -(target * torch.log_softmax(self._q_logits, dim=1)).sum(1)
-        return (weights * cross_entropy).mean()
+        loss = (weights * cross_entropy).mean()
+        if self.cfg.critic_mse_weight:
+            loss = loss + self.cfg.critic_mse_weight * super().critic_loss(td, y, weights)
+        return loss
 
     def _critic_values(
         self, b: dict[str, torch.Tensor], actions: torch.Tensor, step_actor: bool

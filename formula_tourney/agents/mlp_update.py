@@ -26,7 +26,8 @@ allocated once per batch size (``out=``), with no graph to build:
   ``Q = softmax(L) c`` with ``c`` the bin centres, so ``dQ/dL = p (c - Q)`` row by row, and the
   critic's cross-entropy to the HL-Gauss targets ``t`` has ``dL(Q)/dL = w (p - t) / N``. Both
   pass back through the last layer by one GEMM each instead of the one-output critic's
-  product with its weight row.
+  product with its weight row. With ``critic_mse_weight`` the squared error of ``Q`` joins the
+  cross-entropy: ``w dL(Q)/dQ dQ/dL`` adds to the logits' gradient before that GEMM.
 
 The parameters stay the ``nn.Module`` parameters (state_dict keys and checkpoints unchanged);
 gradients are written into the parameters' ``.grad``, which the agent binds to views of one flat
@@ -183,7 +184,7 @@ class MLPUpdate:
 
     def __init__(
         self, actor: Actor, critic: MLPCritic, actor_target: Actor, critic_target: MLPCritic,
-        saturation: Saturation | None = None,
+        saturation: Saturation | None = None, mse_weight: float = 0.0,
     ) -> None:
         if actor.window != critic.window:
             raise ValueError("MLPUpdate: actor and critic must read the same window")
@@ -211,6 +212,7 @@ class MLPUpdate:
             self.edges, self.centres = critic.edges, critic.centres.view(-1, 1)
             self._critic = critic  # its sigma_bins may follow a schedule (DDPG's warm-up)
         self.saturation = saturation if saturation is not None and saturation.weight else None
+        self.mse_weight = float(mse_weight) if self.bins > 1 else 0.0
         self._ws: _Workspace | None = None
 
     def _workspace(self, batch: int) -> _Workspace:
@@ -269,6 +271,8 @@ class MLPUpdate:
         else:
             # dQ/dlogits = p (c - Q) row by row, then through the last layer and the ReLU
             torch.sub(self.centres.view(1, -1), ws.q, out=ws.dq_dlogits).mul_(ws.p)
+            if self.mse_weight:  # the squared error of Q itself: dL/dlogits = gq dQ/dlogits
+                ws.g_logits.addcmul_(ws.dq_dlogits[: ws.batch], ws.gq, value=self.mse_weight)
             torch.mm(ws.dq_dlogits, self.c_out.w, out=ws.dh2)
             aten.threshold_backward.grad_input(ws.dh2, ws.h2, 0, grad_input=ws.m2)
             # the cross-entropy's gradient, g_logits, through the last layer and the ReLU
@@ -378,6 +382,8 @@ class MLPUpdate:
         torch.addcmul(ws.zeros, ws.td, weights.view(B, 1), value=-2.0 / B, out=ws.gq)
         if self.bins > 1:
             self._cross_entropy(ws, weights.view(B, 1))
+            if self.mse_weight:  # its value beside the cross-entropy's: -2 w L(Q)
+                ws.stats_td.add_(torch.dot(ws.gq_flat, ws.td_flat), alpha=self.mse_weight)
         self._critic_backward(ws, x, actions)
         self._actor_backward(ws, x, actions, bc)
         grad_a = torch.mm(ws.m2_q, self.c_act.w, out=ws.grad_a) if action_grad else None
