@@ -148,8 +148,9 @@ class DDPGSettings(FamilySettings):
         "pays this times the paper's squared error of its Q (the softmax's mean) to y, eq. "
         "(2). The cross-entropy to a target 0.75 bins wide moves the mean by a difference of "
         "a fraction of a bin with a pull ~1/sigma^2 of its size, so laps that differ by 1 % "
-        "of Q are told apart slowly; the squared error pulls the mean itself. 0: the "
-        "cross-entropy alone.",
+        "of Q are told apart slowly; the squared error pulls the mean itself. At 0.25 the "
+        "oval's laps came out slower, not faster (docs/results.md). 0: the cross-entropy "
+        "alone.",
         json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
     )
 
