@@ -161,3 +161,28 @@ def test_zero_bins_keep_the_papers_critic_and_the_setting_is_beyond_paper(ring_t
                             overrides={"critic_bins": 51})  # fmt: skip
     assert binned.to_json()["agent"]["critic_bins"] == 51
     assert binned.beyond_paper() == ["critic_bins 51"]
+
+
+def test_the_squared_error_of_q_joins_the_cross_entropy() -> None:
+    """``critic_mse_weight`` w: the critic's loss is the cross-entropy plus w times the paper's
+    squared error of Q (the softmax's mean) to y, both read at the update's own weights; the
+    setting is refused without bins."""
+    weight = 0.5
+    cfg = get_variant("WIN1", {**SMALL, "critic_bins": 21, "critic_value_range": (-10.0, 10.0),
+                               "critic_mse_weight": weight})  # fmt: skip
+    agent = make_agent(cfg, D, seed=2)
+    assert agent._mlp_update is not None and agent._mlp_update.mse_weight == weight
+    batch = _constant_target_buffer(7.3).sample(32)  # every row terminal: y = 7.3
+    obs, actions = torch.from_numpy(batch.observations), torch.from_numpy(batch.actions)
+    with torch.no_grad():
+        logits, _ = agent.critic.logits_pair(obs, actions, actions)
+        q = agent.critic.value(logits)
+        y = torch.full_like(q, 7.3)
+        target = hl_gauss_targets(y, agent.critic.edges, agent.critic.sigma_bins)
+        cross_entropy = float(-(target * torch.log_softmax(logits, 1)).sum(1).mean())
+        squared = float((y - q).square().mean())
+    assert squared > 40.0  # an untrained head reads Q near 0: the term is far from nothing
+    info = agent.update(batch)
+    assert info.critic_loss == pytest.approx(cross_entropy + weight * squared, rel=1e-5)
+    with pytest.raises(UserInputError, match="needs critic_bins"):
+        get_variant("WIN1", {"critic_mse_weight": 0.5})
