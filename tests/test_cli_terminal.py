@@ -1,5 +1,5 @@
-"""What the terminal shows: help text printed as written (never read as markup), and race tables
-that keep every car's name whole on an 80-column console."""
+"""What the terminal shows: help text printed as written (never read as markup), race tables
+that keep every car's name whole on an 80-column console, and messages that stay one line."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.text import Text
 
 from formula_tourney.cli import app, main
+from formula_tourney.commands.output import message
 from formula_tourney.commands.race import RACE_COLUMNS, _render, _render_series, race_table_rows
 from formula_tourney.report.race_standings import standings, standings_rows
 
@@ -89,3 +90,12 @@ def test_standings_keep_the_seeds_apart_at_80_columns() -> None:
         line = next(line for line in text.splitlines() if f" {row[1]} " in line
                     and row[2] in line)
         assert all(cell in line for cell in row), line
+
+
+def test_a_long_message_stays_one_line(capsys) -> None:
+    """A message naming a long path is one line on an 80-column console (not a terminal):
+    rich used to break it at a space, so a path's message split and a grep for it failed."""
+    path = "/tmp/pytest-of-someone/pytest-123/popen-gw0/test_import_a_tree_table_json_0/tracks"
+    message(f"imported 0 of 3 track file(s) from {path}; 3 failed")
+    err = capsys.readouterr().err
+    assert err == f"imported 0 of 3 track file(s) from {path}; 3 failed\n"

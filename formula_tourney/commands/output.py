@@ -60,8 +60,9 @@ def emit(data: Any, as_json: bool, render: Callable[[Console], None] | None = No
 
 
 def message(text: str) -> None:
-    """A progress or status message: always stderr, never mixed into JSON output."""
-    stderr_console.print(text)
+    """A progress or status message: always stderr, never mixed into JSON output, and one
+    line however long (a terminal wraps it on screen; a log or a grep keeps the path whole)."""
+    stderr_console.print(text, soft_wrap=True)
 
 
 def _jsonable(obj: Any) -> Any:
