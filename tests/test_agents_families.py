@@ -151,7 +151,7 @@ def test_a_familys_settings_are_its_own(algorithm: str, key: str) -> None:
                 get_variant(name, {key: value})
         elif (key in ("critic_value_range", "critic_sigma_bins", "critic_mse_weight")
               and variant.algorithm == algorithm):
-            # the bins' span and their target's spread
+            # the bins' span, their target's spread and the squared error beside it
             with pytest.raises(UserInputError, match="needs critic_bins"):
                 get_variant(name, {key: value})
             if not variant.lstm_critic:

@@ -212,7 +212,7 @@ class MLPUpdate:
             self.edges, self.centres = critic.edges, critic.centres.view(-1, 1)
             self._critic = critic  # its sigma_bins may follow a schedule (DDPG's warm-up)
         self.saturation = saturation if saturation is not None and saturation.weight else None
-        self.mse_weight = float(mse_weight) if self.bins > 1 else 0.0
+        self.mse_weight = float(mse_weight)  # read on the bins' path alone
         self._ws: _Workspace | None = None
 
     def _workspace(self, batch: int) -> _Workspace:
