@@ -436,3 +436,24 @@ def test_held_brake_exploration_brakes_for_a_hairpins_length() -> None:
     assert lengths.max() >= 13
     start, stop = edges[0], edges[1]
     assert np.ptp(held[start:stop, 2]) < 1e-6 and np.all(held[start:stop, 1] == 0.0)
+
+
+@pytest.mark.parametrize("name", ["WIN1", "TD3"])  # the hand-written update and autograd's
+def test_learning_rates_decay_linearly_to_their_final_fraction(name: str) -> None:
+    """``lr_decay_updates`` 4 to ``lr_final_fraction`` 0.25: the Adam steps of updates 1-6 run
+    at 1, 0.8125, 0.625, 0.4375, 0.25, 0.25 x the set rates; the first update is the
+    undecayed one's to the bit, the second is not."""
+    over = {**_small(name), "buffer_size": 1000}
+    cfg = get_variant(name, {**over, "lr_decay_updates": 4, "lr_final_fraction": 0.25})
+    plain_cfg = get_variant(name, over)
+    agent, plain = make_agent(cfg, D, seed=4), make_agent(plain_cfg, D, seed=4)
+    buf, plain_buf = _buffer_for(cfg, seed=5), _buffer_for(plain_cfg, seed=5)
+    factors = []
+    for k in range(6):
+        agent.update(buf.sample(16))
+        plain.update(plain_buf.sample(16))
+        factors.append((agent.actor_opt.lr / cfg.actor_lr, agent.critic_opt.lr / cfg.critic_lr))
+        same = torch.equal(agent._online_flat, plain._online_flat)
+        assert same == (k == 0), k
+    np.testing.assert_allclose(factors, [[f, f] for f in (1, 0.8125, 0.625, 0.4375, 0.25, 0.25)])
+    assert plain.actor_opt.lr == plain_cfg.actor_lr and plain.lr_factor() == 1.0

@@ -346,6 +346,7 @@ NEW_FIELDS = {
     "preact_bound": [6.0, 6.0], "obs_norm": False, "critic_bins": 0,
     "critic_value_range": [-100.0, 100.0], "critic_sigma_bins": 0.75,
     "critic_sigma_start_bins": 0.0, "critic_sigma_warmup_updates": 0, "critic_mse_weight": 0.0,
+    "lr_decay_updates": 0, "lr_final_fraction": 0.1,
 }  # fmt: skip
 # AgentConfig().model_dump(mode="json") and each paper variant's changes from it, before
 # TD3 and SAC existed

@@ -463,6 +463,8 @@ class Agent:
         no autograd graph, ~60 operators into preallocated buffers instead of ~160
         (``benchmarks/learner_throughput.py`` times both side by side).
         """
+        if self.cfg.lr_decay_updates:
+            self._decay_learning_rates()
         if self._mlp_update is None:
             return self._update_autograd(batch, per_buffer, bc)
         cfg, mlp = self.cfg, self._mlp_update
@@ -482,6 +484,21 @@ class Agent:
             critic_loss=-0.5 * sum_gq_td, actor_loss=-sum_q_pi / n + bc_loss + preact_loss,
             q_mean=sum_q / n, td_abs_mean=sum_abs_td / n,
         )  # fmt: skip
+
+    def lr_factor(self) -> float:
+        """The learning rates' share of ``actor_lr`` and ``critic_lr`` at this update: 1 falling
+        linearly to ``lr_final_fraction`` over ``lr_decay_updates`` (0: always 1). A function of
+        the update count alone, so a resumed run takes up the schedule where it stopped."""
+        cfg = self.cfg
+        if not cfg.lr_decay_updates:
+            return 1.0
+        done = min(1.0, self.updates / cfg.lr_decay_updates)
+        return 1.0 - (1.0 - cfg.lr_final_fraction) * done
+
+    def _decay_learning_rates(self) -> None:
+        factor = self.lr_factor()
+        self.actor_opt.lr = self.cfg.actor_lr * factor
+        self.critic_opt.lr = self.cfg.critic_lr * factor
 
     @staticmethod
     def _bc_loss(

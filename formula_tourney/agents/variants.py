@@ -102,6 +102,24 @@ class SharedSettings(BaseModel):
     crash_penalty_decay_steps: int = REWARD_SETTINGS["crash_penalty_decay_steps"].field()
     actor_lr: float = Field(1e-4, gt=0.0, description="Adam learning rate of the actor.")
     critic_lr: float = Field(1e-3, gt=0.0, description="Adam learning rate of the critic.")
+    lr_decay_updates: int = Field(
+        0,
+        ge=0,
+        le=1_000_000_000,
+        description="Beyond the paper: the actor's and critic's learning rates fall linearly "
+        "from actor_lr and critic_lr to lr_final_fraction of them over this many updates, "
+        "then stay there, so that a driver near its best lap stops wandering around it. 0: "
+        "constant rates, as the paper's.",
+        json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
+    )
+    lr_final_fraction: float = Field(
+        0.1,
+        gt=0.0,
+        le=1.0,
+        description="Beyond the paper: with lr_decay_updates, the fraction of actor_lr and "
+        "critic_lr the rates end at.",
+        json_schema_extra=marks(added_in_layout=2, beyond_paper=True),
+    )
     batch_size: int = Field(256, ge=1, le=65536, description="Minibatch size N per update.")
     hidden: tuple[HiddenUnits, HiddenUnits] = Field(
         (400, 300),
