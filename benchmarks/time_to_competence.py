@@ -38,6 +38,7 @@ stdout is one JSON object. Seeds must be consecutive (a tournament's seeds are `
         [--anchors sb3:SAC,sb3_contrib:CrossQ | --no-sb3] [--out DIR] [--plot FILE]
     .venv/bin/python benchmarks/time_to_competence.py --replot RUN.json[=LABEL] ... --plot FILE
     .venv/bin/python benchmarks/time_to_competence.py --replot RUN.json ... --at-env-steps 100000
+    .venv/bin/python benchmarks/time_to_competence.py --replot RUN.json ... --settled-from-cpu-s 200
 """
 
 from __future__ import annotations
@@ -53,6 +54,7 @@ import importlib.util  # noqa: E402
 import itertools  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
+import statistics  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 from collections.abc import Callable, Iterable, Mapping, Sequence  # noqa: E402
@@ -583,6 +585,38 @@ def render_laps_at_env_steps(rows: Sequence[Mapping[str, Any]], track: str) -> s
     return "\n".join(lines)
 
 
+def settled_laps(result: Mapping[str, Any], from_cpu_s: float) -> list[dict[str, Any]]:
+    """Per entrant of ``result`` (``load_results``): each run's median clean test lap over the
+    tests held at ``from_cpu_s`` CPU-s or later (its JSON ``curve``; None: no clean lap there)
+    with their fastest and slowest, and the median over runs (a miss counted as infinite).
+    The best lap is the fastest of hundreds of tests; this is where a run's tests settle."""
+    out = []
+    for e in _all(result):
+        medians, spans = [], []
+        for r in e["runs"]:
+            laps = [c["clean_lap_s"] for c in r.get("curve", [])
+                    if c["cpu_s"] >= from_cpu_s and c["clean_lap_s"] is not None]  # fmt: skip
+            medians.append(float(statistics.median(laps)) if laps else math.inf)
+            spans.append([round(min(laps), 3), round(max(laps), 3)] if laps else None)
+        out.append({"label": e["label"], "seeds": [r["seed"] for r in e["runs"]],
+                    "median_lap_s": [finite(x, 3) for x in medians], "span_s": spans,
+                    "median_s": finite(median_inf(medians), 3)})  # fmt: skip
+    return out
+
+
+def render_settled_laps(rows: Sequence[Mapping[str, Any]], from_cpu_s: float) -> str:
+    """The ``--settled-from-cpu-s`` table (stderr)."""
+    lines = [f"median clean test lap from {from_cpu_s:g} CPU-s on (each run [fastest, "
+             "slowest], then the median)"]  # fmt: skip
+    for row in rows:
+        shown = ", ".join("miss" if m is None else f"{m:.3f} [{span[0]:.3f}, {span[1]:.3f}]"
+                          for m, span in zip(row["median_lap_s"], row["span_s"], strict=True))
+        median = row["median_s"]
+        lines.append(f"  {row['label']}: {shown}; median "
+                     f"{'miss' if median is None else f'{median:.3f}'} s")
+    return "\n".join(lines)
+
+
 def plot_curves(result: Mapping[str, Any], out_base: Path) -> list[Path]:
     """Each run's clean test laps (dots) and best lap so far (line) against CPU-s, one colour
     per entrant, with the two followers and the reference limit as horizontal lines."""
@@ -681,12 +715,18 @@ def main() -> None:
                     help="with --replot: each earlier run's best clean lap after at most N "
                     "env steps (read from its job folder's tests) and the median per entrant, "
                     "to compare runs step for step")
+    ap.add_argument("--settled-from-cpu-s", type=float, default=None, metavar="S",
+                    help="with --replot: each earlier run's median clean test lap over the "
+                    "tests from S CPU-s on (where its tests settle) and the median per entrant")
     args = ap.parse_args()  # fmt: skip
-    if args.at_env_steps is not None and not args.replot:
-        raise SystemExit("--at-env-steps reads earlier runs: give them with --replot")
+    reads = (args.at_env_steps, args.settled_from_cpu_s)
+    if any(x is not None for x in reads) and not args.replot:
+        raise SystemExit("--at-env-steps and --settled-from-cpu-s read earlier runs: give them "
+                         "with --replot")  # fmt: skip
     if args.replot:
-        if not args.plot and args.at_env_steps is None:
-            raise SystemExit("--replot draws into --plot FILE or reads --at-env-steps: give one")
+        if not args.plot and all(x is None for x in reads):
+            raise SystemExit("--replot draws into --plot FILE or reads --at-env-steps or "
+                             "--settled-from-cpu-s: give one")  # fmt: skip
         result = load_results(args.replot)
         summary: dict[str, Any] = {"benchmark": "time_to_competence_replot",
                                    "replot": args.replot, "wrote": []}  # fmt: skip
@@ -694,6 +734,11 @@ def main() -> None:
             rows = laps_at_env_steps(result, parse_env_steps(args.at_env_steps), _job_tests)
             print(render_laps_at_env_steps(rows, result["track"]), file=sys.stderr)
             summary["at_env_steps"] = rows
+        if args.settled_from_cpu_s is not None:
+            settled = settled_laps(result, args.settled_from_cpu_s)
+            print(render_settled_laps(settled, args.settled_from_cpu_s), file=sys.stderr)
+            summary["settled_from_cpu_s"] = {"from_cpu_s": args.settled_from_cpu_s,
+                                             "entrants": settled}  # fmt: skip
         if args.plot:
             drawn = plot_curves(result, Path(args.plot))
             for path in drawn:

@@ -175,6 +175,33 @@ def test_laps_at_env_steps_compare_earlier_runs_step_for_step(tmp_path: Path) ->
             ttc.parse_env_steps(bad)
 
 
+def test_settled_laps_are_the_median_of_the_late_tests() -> None:
+    """``--replot ... --settled-from-cpu-s S``: each run's median clean test lap over its tests
+    at S CPU-s or later (a dirty test is no lap), its fastest and slowest, and the median over
+    runs with a run that has none there (or failed) counted as a miss."""
+    def run(seed: int, laps: list[tuple[float, float | None]]) -> dict:
+        return {"seed": seed, "curve": [{"episode": 5 * (k + 1), "cpu_s": cpu,
+                                         "clean_lap_s": lap}
+                                        for k, (cpu, lap) in enumerate(laps)]}  # fmt: skip
+
+    runs = [run(0, [(10.0, 34.0), (20.0, 36.0), (25.0, None), (30.0, 35.0), (40.0, 35.5)]),
+            run(1, [(10.0, 35.2), (20.0, 36.4), (30.0, 36.0)]),
+            run(2, [(10.0, 34.9), (15.0, None)]),
+            ttc._failed("WIN1:best", 3, "EntrantError: NaN action")]  # fmt: skip
+    result = {"track": "oval", "entrants": [{"label": "WIN1:best", "runs": runs}],
+              "anchors": []}  # fmt: skip
+    (row,) = ttc.settled_laps(result, 20.0)
+    assert row["seeds"] == [0, 1, 2, 3]
+    assert row["median_lap_s"] == [35.5, 36.2, None, None]  # 35.0, 35.5, 36.0 / 36.0, 36.4
+    assert row["span_s"] == [[35.0, 36.0], [36.0, 36.4], None, None]
+    assert row["median_s"] is None  # two misses of four: the median is a miss
+    (early,) = ttc.settled_laps(result, 0.0)
+    assert early["median_lap_s"][:3] == [35.25, 36.0, 34.9]
+    assert early["median_s"] == pytest.approx((35.25 + 36.0) / 2)  # 34.9, 35.25, 36.0, miss
+    text = ttc.render_settled_laps([row], 20.0)
+    assert "WIN1:best: 35.500 [35.000, 36.000], 36.200 [36.000, 36.400], miss, miss" in text
+
+
 def test_anchors_are_parsed_and_named() -> None:
     assert ttc.parse_anchors("sb3:SAC, sb3_contrib:CrossQ") == [("sb3", "SAC"),
                                                                  ("sb3_contrib", "CrossQ")]
